@@ -1,0 +1,1 @@
+"""Subcommands of ``glmav-observer``; each module provides ``register(subparsers)``."""

@@ -1,0 +1,205 @@
+"""The records the service produces: the contract between estimation and every sink.
+
+Each record is a frozen dataclass with a ``to_dict()`` giving the JSON payload of
+``design.md`` (one object per sample, ``schema`` first). Frames and units are in the
+field names: ``v_body_mps`` is FRD body-frame velocity in m/s, ``v_ned_mps`` is the
+earth-frame (NED) velocity in m/s, ``t_boot_s`` is the vehicle's boot clock in s.
+
+``flatten()`` gives the same record as one flat row (``v_ned_mps`` -> ``v_ned_mps_n``
+...), used by ``replay --out`` (CSV/JSONL) so that files and Zenoh payloads agree.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+#: The configurations of the observer bank, in bank order (design.md, "Estimation").
+CONFIGS: tuple[str, ...] = ("full", "c1", "c2", "c3")
+#: The earth-frame (NED) axis each configuration does not measure.
+LOST_AXIS_OF_CONFIG: dict[str, str | None] = {"full": None, "c1": "d", "c2": "n", "c3": "e"}
+NED_AXES: tuple[str, str, str] = ("n", "e", "d")
+
+VELOCITY_SCHEMA = "glmav.velocity/1"
+HEALTH_SCHEMA = "glmav.health/1"
+TRUTH_SCHEMA = "glmav.truth/1"
+MEASUREMENT_SCHEMA = "glmav.measurement/1"
+
+AxisName = Literal["n", "e", "d"]
+Vec3 = tuple[float, float, float]
+
+
+def _vec(v: Vec3 | None) -> list[float | None] | None:
+    """A 3-vector as a JSON list; NaN becomes null (JSON has no NaN)."""
+    if v is None:
+        return None
+    return [None if not math.isfinite(x) else float(x) for x in v]
+
+
+@dataclass(frozen=True, slots=True)
+class VelocityRecord:
+    """One configuration's estimate at one vehicle time (key ``glmav/<sysid>/velocity/<config>``).
+
+    ``config`` is one of ``CONFIGS`` or ``"active"``; for ``"active"``, ``source_config``
+    names the configuration selected. ``lost_axis`` is the NED axis not measured (dead
+    reckoned) and ``sigma_lost_mps`` its 1-sigma uncertainty, growing with time since
+    hand-over (None when nothing is lost). ``health`` is ``"ok"``, ``"dead_reckoning"``
+    or ``"degraded"``.
+    """
+
+    sysid: int
+    config: str
+    t_boot_s: float
+    v_body_mps: Vec3
+    v_ned_mps: Vec3
+    lost_axis: AxisName | None
+    health: str
+    seq: int
+    source_config: str | None = None
+    sigma_lost_mps: float | None = None
+    schema: str = field(default=VELOCITY_SCHEMA)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": self.schema,
+            "sysid": self.sysid,
+            "config": self.config,
+            "t_boot_s": self.t_boot_s,
+            "v_body_mps": _vec(self.v_body_mps),
+            "v_ned_mps": _vec(self.v_ned_mps),
+            "lost_axis": self.lost_axis,
+            "health": self.health,
+            "seq": self.seq,
+            "source_config": self.source_config,
+            "sigma_lost_mps": self.sigma_lost_mps,
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class FaultEvent:
+    """An isolated velocity-sensor fault on one NED axis."""
+
+    axis: AxisName
+    kind: str  # "dropout" | "freeze" | "bias" | "noise"
+    t_detect_s: float
+    t_onset_s: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "axis": self.axis,
+            "kind": self.kind,
+            "t_detect_s": self.t_detect_s,
+            "t_onset_s": self.t_onset_s,
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class HealthRecord:
+    """Per-vehicle health (key ``glmav/<sysid>/health``, 10 Hz).
+
+    ``residual_ned_mps`` are the per-axis residuals of the velocity measurement
+    against the prediction; ``test_ratio`` the residual statistics over their
+    thresholds (> 1 means the axis fails its test); ``axis_state`` maps each NED axis
+    to ``"ok"``, ``"suspect"``, ``"faulty"`` or ``"recovering"``; ``input_rates_hz``
+    the measured stream rates by message name.
+    """
+
+    sysid: int
+    t_boot_s: float
+    seq: int
+    active_config: str
+    residual_ned_mps: Vec3
+    test_ratio: Vec3
+    axis_state: dict[str, str]
+    isolated_faults: tuple[FaultEvent, ...]
+    input_rates_hz: dict[str, float]
+    counters: dict[str, int]
+    schema: str = field(default=HEALTH_SCHEMA)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": self.schema,
+            "sysid": self.sysid,
+            "t_boot_s": self.t_boot_s,
+            "seq": self.seq,
+            "active_config": self.active_config,
+            "residual_ned_mps": _vec(self.residual_ned_mps),
+            "test_ratio": _vec(self.test_ratio),
+            "axis_state": dict(self.axis_state),
+            "isolated_faults": [f.to_dict() for f in self.isolated_faults],
+            "input_rates_hz": dict(self.input_rates_hz),
+            "counters": dict(self.counters),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class TruthRecord:
+    """The simulator's truth (SIM_STATE), for error plots and metrics only."""
+
+    sysid: int
+    t_boot_s: float
+    v_body_mps: Vec3
+    v_ned_mps: Vec3
+    euler_rad: Vec3
+    position_ned_m: Vec3 | None
+    seq: int
+    schema: str = field(default=TRUTH_SCHEMA)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": self.schema,
+            "sysid": self.sysid,
+            "t_boot_s": self.t_boot_s,
+            "v_body_mps": _vec(self.v_body_mps),
+            "v_ned_mps": _vec(self.v_ned_mps),
+            "euler_rad": _vec(self.euler_rad),
+            "position_ned_m": _vec(self.position_ned_m),
+            "seq": self.seq,
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class MeasurementRecord:
+    """The velocity measurement as received (LOCAL_POSITION_NED), NaN where missing."""
+
+    sysid: int
+    t_boot_s: float
+    v_ned_mps: Vec3
+    position_ned_m: Vec3
+    seq: int
+    schema: str = field(default=MEASUREMENT_SCHEMA)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": self.schema,
+            "sysid": self.sysid,
+            "t_boot_s": self.t_boot_s,
+            "v_ned_mps": _vec(self.v_ned_mps),
+            "position_ned_m": _vec(self.position_ned_m),
+            "seq": self.seq,
+        }
+
+
+Record = VelocityRecord | HealthRecord | TruthRecord | MeasurementRecord
+
+
+def flatten(record: Record) -> dict[str, Any]:
+    """One flat row: lists become ``name_<axis>`` columns, nested dicts ``name.key``."""
+    row: dict[str, Any] = {}
+    for key, value in record.to_dict().items():
+        if isinstance(value, list) and len(value) == 3 and key.endswith(("_mps", "_m", "_rad")):
+            suffixes = ("u", "v", "w") if "body" in key else ("n", "e", "d")
+            if key == "euler_rad":
+                suffixes = ("roll", "pitch", "yaw")
+            for s, x in zip(suffixes, value, strict=True):
+                row[f"{key}_{s}"] = x
+        elif isinstance(value, list) and len(value) == 3 and key in ("test_ratio",):
+            for s, x in zip(NED_AXES, value, strict=True):
+                row[f"{key}_{s}"] = x
+        elif isinstance(value, dict):
+            for k, x in value.items():
+                row[f"{key}.{k}"] = x
+        else:
+            row[key] = value
+    return row
