@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import sys
 from collections.abc import Sequence
 
 from glmav_observer import __version__
+from glmav_observer.logs import configure_logging
 
 #: Subcommand modules, in the order ``--help`` lists them.
 COMMANDS: tuple[str, ...] = ("check",)
@@ -48,8 +48,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from glmav_observer.logs import configure_logging
-
     configure_logging(args.log_level, args.log_format)
     code: int = args.func(args)
     return code
