@@ -161,13 +161,18 @@ class TruthRecord:
 
 @dataclass(frozen=True, slots=True)
 class MeasurementRecord:
-    """The velocity measurement as received (LOCAL_POSITION_NED), NaN where missing."""
+    """The velocity measurement as received (LOCAL_POSITION_NED), NaN where missing.
+
+    ``euler_rad`` is the latest attitude (ATTITUDE, ZYX roll/pitch/yaw) held at that
+    vehicle time, so that sinks can draw the pose of a vehicle that sends no truth.
+    """
 
     sysid: int
     t_boot_s: float
     v_ned_mps: Vec3
     position_ned_m: Vec3
     seq: int
+    euler_rad: Vec3 | None = None
     schema: str = field(default=MEASUREMENT_SCHEMA)
 
     def to_dict(self) -> dict[str, Any]:
@@ -177,6 +182,7 @@ class MeasurementRecord:
             "t_boot_s": self.t_boot_s,
             "v_ned_mps": _vec(self.v_ned_mps),
             "position_ned_m": _vec(self.position_ned_m),
+            "euler_rad": _vec(self.euler_rad),
             "seq": self.seq,
         }
 
