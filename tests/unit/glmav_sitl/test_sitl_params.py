@@ -1,0 +1,74 @@
+"""Loading and validation of the vehicle parameter file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from glmav_sitl.config import ConfigError, data_path
+from glmav_sitl.params import load_vehicle_params
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_packaged_defaults_equal_the_user_facing_configs() -> None:
+    """configs/ and glmav_sitl/data/ must never drift apart."""
+    user = sorted(
+        p.relative_to(REPO / "configs")
+        for p in (REPO / "configs").rglob("*.toml")
+        if p.parts[-2] in ("vehicle", "scenarios") or p.name == "sitl.toml"
+    )
+    assert user, "no configs found"
+    for rel in user:
+        shipped = data_path(*rel.parts)
+        assert shipped.read_bytes() == (REPO / "configs" / rel).read_bytes(), rel
+
+
+def test_default_vehicle_loads_with_design_values() -> None:
+    p = load_vehicle_params()
+    assert (p.m, p.alpha, p.beta, p.gamma1, p.gamma2) == (0.2, 2.99e-5, 2.21e-5, 1e-6, -9.025e-7)
+    assert (p.ixx, p.izz, p.swash_limit, p.downwash_hover) == (1.2e-3, 2e-4, 0.26, 5.8)
+
+
+def _write(tmp_path: Path, old: str, new: str) -> Path:
+    text = data_path("vehicle", "glmav.toml").read_text(encoding="utf-8")
+    assert old in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "match"),
+    [
+        (
+            'm = { value = 0.200, unit = "kg"',
+            'm = { value = 0.200, unit = "g"',
+            r"m\.unit: expected unit 'kg'",
+        ),
+        ("m = { value = 0.200", "m = { value = -0.2", r"m\.value: -0\.2 kg outside"),
+        ("m = { value = 0.200", 'm = { value = "heavy"', r"m\.value: expected a number"),
+        ("sigma = { value = 1.0", "sigma = { value = 0.5", r"sigma\.value: 0\.5 - outside"),
+        (
+            "gamma2 = { value = -9.025e-7",
+            "gamma2 = { value = 9.025e-7",
+            r"gamma2\.value: .*opposite",
+        ),
+        ('source = "ISA sea level"', 'source = ""', r"rho\.source"),
+        ("rho = {", "rhoo = {", r"rhoo: unknown parameter"),
+        ("rho = {", "rho = [", r"not valid TOML"),
+    ],
+)
+def test_bad_vehicle_file_names_file_key_and_reason(
+    tmp_path: Path, old: str, new: str, match: str
+) -> None:
+    path = _write(tmp_path, old, new)
+    with pytest.raises(ConfigError, match=match) as e:
+        load_vehicle_params(path)
+    assert str(path) in str(e.value)
+
+
+def test_missing_file_is_a_config_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="file not found"):
+        load_vehicle_params(tmp_path / "nope.toml")
