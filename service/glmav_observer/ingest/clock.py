@@ -1,0 +1,133 @@
+"""The vehicle's clock: boot-relative time, ordering, duplicates, resets and gaps.
+
+Design (latency vs ordering). Samples are processed **on arrival** when they are in
+vehicle-time order, which is the normal case on every link we know (one autopilot
+thread stamps and sends in order). No reorder buffer holds in-order samples back, so
+ordering costs no latency (the daemon's p99 arrival-to-record goal is 2 ms, far below
+any useful buffer). A sample older than the vehicle's current time by at most
+``latency_window_s`` is still admitted (``REORDERED``): it becomes the held input from
+now on, without rewinding the estimator. Older than that, or older than the last
+sample of its own stream, it is dropped as ``late``; the same time stamp again on a
+stream is a ``duplicate``.
+
+A vehicle reboot sends time back to near zero. A single sample far in the past (or
+far in the future) is much more likely a corrupt one, so a new timeline is adopted
+only when ``confirm_samples`` consecutive samples agree on it (``RESET``: the caller
+restarts that vehicle's bank); until then they are dropped and counted
+(``time_backwards`` / ``time_jump``). Gaps longer than ``gap_s`` are counted and
+reported.
+
+``time_usec`` larger than ``EPOCH_THRESHOLD_US`` (2001-09-09 as a UNIX time; 31 years
+as an uptime) is UNIX-epoch time. It is mapped to boot time with SYSTEM_TIME's pair
+(``time_unix_usec``, ``time_boot_ms``) when the vehicle sent one, else with the offset
+to the vehicle's latest boot time fixed at the first such sample.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+from enum import Enum
+
+from glmav_observer.ingest.convert import TimeKind
+
+EPOCH_THRESHOLD_US = 1_000_000_000_000_000
+
+
+class Admission(Enum):
+    """What to do with a sample, decided by the vehicle clock."""
+
+    ACCEPT = "accept"  # in order: process now
+    REORDERED = "reordered"  # slightly old (within the window): use as held input
+    DUPLICATE = "duplicate"  # drop
+    LATE = "late"  # drop
+    PENDING = "pending"  # inconsistent with the timeline, held for confirmation: drop
+    RESET = "reset"  # a new timeline is confirmed: restart the vehicle, then process
+
+
+@dataclass(frozen=True, slots=True)
+class ClockConfig:
+    """Ordering policy (all in seconds of vehicle time)."""
+
+    latency_window_s: float = 0.05
+    reset_backwards_s: float = 2.0
+    jump_forward_s: float = 30.0
+    gap_s: float = 0.5
+    confirm_samples: int = 5
+
+
+@dataclass
+class VehicleClock:
+    """One vehicle's time base. ``counters`` is shared with the vehicle's counters."""
+
+    config: ClockConfig
+    counters: collections.Counter[str]
+    t_now_s: float | None = None
+    epoch_offset_us: int | None = None
+    gaps: list[tuple[float, float]] = field(default_factory=list)
+    _last_t_by_stream: dict[str, float] = field(default_factory=dict)
+    _pending: list[float] = field(default_factory=list)
+
+    def note_system_time(self, time_unix_usec: int, time_boot_ms: int) -> None:
+        """SYSTEM_TIME: the exact UNIX-to-boot offset, if the vehicle knows UNIX time."""
+        if time_unix_usec > EPOCH_THRESHOLD_US:
+            self.epoch_offset_us = int(time_unix_usec) - int(time_boot_ms) * 1000
+
+    def to_boot_s(self, t_us: int, kind: TimeKind) -> float | None:
+        """Vehicle boot time of a raw stamp; None if it cannot be mapped yet (counted)."""
+        if kind is TimeKind.NONE:
+            return self.t_now_s
+        if kind is TimeKind.USEC and t_us > EPOCH_THRESHOLD_US:
+            self.counters["epoch_time_samples"] += 1
+            if self.epoch_offset_us is None:
+                if self.t_now_s is None:
+                    self.counters["epoch_unmapped"] += 1
+                    return None
+                self.epoch_offset_us = t_us - round(self.t_now_s * 1e6)
+            return (t_us - self.epoch_offset_us) * 1e-6
+        return t_us * 1e-6
+
+    def admit(self, stream: str, t_s: float) -> Admission:
+        """Decide about a sample of ``stream`` (message name) at vehicle time ``t_s``."""
+        cfg = self.config
+        now = self.t_now_s
+        if now is None:
+            self._adopt(stream, t_s)
+            return Admission.ACCEPT
+        if t_s < now - cfg.reset_backwards_s or t_s > now + cfg.jump_forward_s:
+            self._pending.append(t_s)
+            p = self._pending
+            if len(p) >= cfg.confirm_samples and max(p) - min(p) <= cfg.reset_backwards_s:
+                self.counters["clock_reset" if t_s < now else "clock_jump"] += 1
+                self._pending = []
+                self._last_t_by_stream.clear()
+                self.t_now_s = None
+                self.epoch_offset_us = None
+                self._adopt(stream, t_s)
+                return Admission.RESET
+            self.counters["time_backwards" if t_s < now else "time_jump"] += 1
+            return Admission.PENDING
+        self._pending.clear()
+        last = self._last_t_by_stream.get(stream)
+        if last is not None and t_s == last:
+            self.counters["duplicate"] += 1
+            return Admission.DUPLICATE
+        if last is not None and t_s < last:
+            self.counters["late"] += 1
+            return Admission.LATE
+        if t_s >= now:
+            if t_s - now > cfg.gap_s:
+                self.counters["gap"] += 1
+                self.gaps.append((now, t_s))
+            self._adopt(stream, t_s)
+            return Admission.ACCEPT
+        if t_s >= now - cfg.latency_window_s:
+            self.counters["reordered"] += 1
+            self._last_t_by_stream[stream] = t_s
+            return Admission.REORDERED
+        self.counters["late"] += 1
+        return Admission.LATE
+
+    def _adopt(self, stream: str, t_s: float) -> None:
+        self.t_now_s = t_s
+        self._last_t_by_stream[stream] = t_s

@@ -1,0 +1,130 @@
+"""Decoded MAVLink messages -> typed samples in SI units (pure; no I/O, no clock policy).
+
+Units at the edge (MAVLink common.xml):
+
+- ``ATTITUDE``: rad, rad/s, ``time_boot_ms``.
+- ``HIGHRES_IMU``: m/s², rad/s, ``time_usec``.
+- ``SCALED_IMU``: mG (1e-3 g, g = 9.80665 m/s²), mrad/s, ``time_boot_ms``.
+- ``RAW_IMU``: raw counts, ``time_usec``; the scales come from configuration, per
+  vehicle (ArduPilot sends mG and mrad/s, the defaults of :class:`RawImuScale`).
+- ``LOCAL_POSITION_NED``: m, m/s (NED), ``time_boot_ms``.
+- ``SIM_STATE``: rad, m/s (NED); no time field.
+
+Time fields are returned raw in µs with their kind, so that the per-vehicle clock
+(:mod:`glmav_observer.ingest.clock`) decides (UNIX-epoch ``time_usec`` detection).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any
+
+from glmav_observer.ingest.samples import (
+    AttitudeSample,
+    ImuSample,
+    ImuSource,
+    Sample,
+    TruthSample,
+    Vec3,
+    VelocitySample,
+)
+
+#: Standard gravity, for milli-g (MAVLink SCALED_IMU, ArduPilot RAW_IMU).
+STANDARD_G_MPS2 = 9.80665
+MG_TO_MPS2 = STANDARD_G_MPS2 * 1e-3
+MRAD_TO_RAD = 1e-3
+
+#: Messages that become samples.
+SAMPLE_MESSAGES: frozenset[str] = frozenset(
+    {"ATTITUDE", "RAW_IMU", "SCALED_IMU", "HIGHRES_IMU", "LOCAL_POSITION_NED", "SIM_STATE"}
+)
+
+
+class TimeKind(Enum):
+    """How a message stamps vehicle time."""
+
+    BOOT_MS = "time_boot_ms"  # ms since boot
+    USEC = "time_usec"  # µs since boot, or since the UNIX epoch on some autopilots
+    NONE = "none"  # no time field (SIM_STATE): stamped with the vehicle's latest time
+
+
+@dataclass(frozen=True, slots=True)
+class RawImuScale:
+    """Scales of ``RAW_IMU`` counts for one vehicle (ArduPilot: 1 LSB = 1 mG, 1 mrad/s)."""
+
+    accel_mps2_per_lsb: float = MG_TO_MPS2
+    gyro_radps_per_lsb: float = MRAD_TO_RAD
+
+
+class ConversionError(ValueError):
+    """A message that cannot become a sample (reason names the counter)."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+def message_time_us(msg: Any) -> tuple[int, TimeKind]:
+    """The raw time stamp of a sample message, in µs, and its kind."""
+    name = msg.get_type()
+    if name in ("RAW_IMU", "HIGHRES_IMU"):
+        return int(msg.time_usec), TimeKind.USEC
+    if name == "SIM_STATE":
+        return 0, TimeKind.NONE
+    return int(msg.time_boot_ms) * 1000, TimeKind.BOOT_MS
+
+
+def _finite3(values: tuple[float, float, float], what: str) -> Vec3:
+    x, y, z = (float(v) for v in values)
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ConversionError("nan_field", f"{what} not finite: {values}")
+    return (x, y, z)
+
+
+def _imu_vectors(f: Vec3, w: Vec3, name: str) -> tuple[Vec3, Vec3]:
+    if f == (0.0, 0.0, 0.0):
+        # an accelerometer never reads exactly zero on a vehicle in gravity: absent sensor
+        raise ConversionError("imu_absent", f"{name} specific force is exactly zero")
+    return f, w
+
+
+def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
+    """Convert one decoded message (name in ``SAMPLE_MESSAGES``) stamped at ``t_boot_s``.
+
+    Raises :class:`ConversionError` (reason ``nan_field``, ``imu_absent``) for a message
+    that cannot be used; ``LOCAL_POSITION_NED`` keeps NaN velocities (a dropout is data).
+    """
+    name = msg.get_type()
+    sysid = int(msg.get_srcSystem())
+    if name == "ATTITUDE":
+        euler = _finite3((msg.roll, msg.pitch, msg.yaw), "ATTITUDE angles")
+        omega = _finite3((msg.rollspeed, msg.pitchspeed, msg.yawspeed), "ATTITUDE rates")
+        return AttitudeSample(sysid, t_boot_s, euler, omega)
+    if name == "HIGHRES_IMU":
+        f, w = _imu_vectors(
+            _finite3((msg.xacc, msg.yacc, msg.zacc), "HIGHRES_IMU acc"),
+            _finite3((msg.xgyro, msg.ygyro, msg.zgyro), "HIGHRES_IMU gyro"),
+            name,
+        )
+        return ImuSample(sysid, t_boot_s, f, w, ImuSource.HIGHRES_IMU)
+    if name in ("SCALED_IMU", "RAW_IMU"):
+        if name == "SCALED_IMU":
+            ka, kw, src = MG_TO_MPS2, MRAD_TO_RAD, ImuSource.SCALED_IMU
+        else:
+            ka, kw = raw_scale.accel_mps2_per_lsb, raw_scale.gyro_radps_per_lsb
+            src = ImuSource.RAW_IMU
+        fa = (msg.xacc * ka, msg.yacc * ka, msg.zacc * ka)
+        fw = (msg.xgyro * kw, msg.ygyro * kw, msg.zgyro * kw)
+        f, w = _imu_vectors(_finite3(fa, f"{name} acc"), _finite3(fw, f"{name} gyro"), name)
+        return ImuSample(sysid, t_boot_s, f, w, src)
+    if name == "LOCAL_POSITION_NED":
+        pos = (float(msg.x), float(msg.y), float(msg.z))
+        vel = (float(msg.vx), float(msg.vy), float(msg.vz))
+        return VelocitySample(sysid, t_boot_s, pos, vel)
+    if name == "SIM_STATE":
+        euler = _finite3((msg.roll, msg.pitch, msg.yaw), "SIM_STATE angles")
+        vel3 = _finite3((msg.vn, msg.ve, msg.vd), "SIM_STATE velocity")
+        return TruthSample(sysid, t_boot_s, euler, vel3)
+    raise ConversionError("unknown_message", f"{name} is not a sample message")

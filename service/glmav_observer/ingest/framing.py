@@ -1,0 +1,221 @@
+"""MAVLink framing and decoding that never raises on bad input: it counts and resyncs.
+
+pymavlink's parser (``MAVLink.parse_char``) with ``robust_parsing`` returns
+``BAD_DATA`` for a bad CRC but then skips the whole claimed frame, so a corrupted
+length byte swallows the valid frames that follow; without ``robust_parsing`` it
+raises. Here framing is ours and decoding is the dialect's ``MAVLink.decode`` (which
+checks the CRC with the message's CRC-extra):
+
+- a candidate frame starts at a magic byte (0xFE MAVLink 1, 0xFD MAVLink 2);
+- if it decodes, it is emitted; if not, and a magic byte follows right after the
+  claimed length, the whole frame is skipped (one rejected frame: a CRC error in an
+  intact frame); otherwise we resync one byte after the magic (a corrupt length);
+- in datagram mode (UDP: every datagram holds whole frames) bytes left over at the
+  end of a datagram are a truncated frame and are dropped; in stream mode (TCP,
+  serial) they wait for more bytes.
+
+Every rejection is counted by reason in ``FrameCounters`` (``bad_crc``, ``truncated``,
+``bad_header``, ``garbage_bytes``, ``unknown_message``). A ``.tlog`` (8-byte
+big-endian µs host timestamp before every frame) is read by :func:`iter_tlog` with
+the same rules.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink_dialect
+
+logger = logging.getLogger(__name__)
+
+MAGIC_V1 = 0xFE
+MAGIC_V2 = 0xFD
+_HEADER_V1 = 6
+_HEADER_V2 = 10
+_SIGNATURE_LEN = 13
+_IFLAG_SIGNED = 0x01
+_TLOG_STAMP = struct.Struct(">Q")
+
+#: The dialect's message class, for type hints (pymavlink ships no stubs).
+MavMessage = Any
+
+
+@dataclass
+class FrameCounters:
+    """Rejections and totals of one link, by reason (plain counts, JSON-able)."""
+
+    counts: collections.Counter[str] = field(default_factory=collections.Counter)
+
+    def add(self, reason: str, n: int = 1) -> None:
+        self.counts[reason] += n
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(sorted(self.counts.items()))
+
+    @property
+    def rejected_frames(self) -> int:
+        """Candidate frames rejected (bad CRC, bad header, truncated)."""
+        return sum(self.counts[k] for k in ("bad_crc", "bad_header", "truncated"))
+
+
+def new_dialect() -> Any:
+    """A dialect codec object (ardupilotmega, a superset of common), used for decode and pack."""
+    return mavlink_dialect.MAVLink(None, srcSystem=255, srcComponent=190)
+
+
+def _frame_length(buf: bytes | bytearray, p: int, n: int) -> int | None:
+    """Total length of the candidate frame at ``p`` or None if the header is incomplete."""
+    magic = buf[p]
+    if magic == MAGIC_V2:
+        if n - p < 3:
+            return None
+        length = _HEADER_V2 + buf[p + 1] + 2
+        if buf[p + 2] & _IFLAG_SIGNED:
+            length += _SIGNATURE_LEN
+        return length
+    if n - p < 2:
+        return None
+    return _HEADER_V1 + buf[p + 1] + 2
+
+
+class FrameDecoder:
+    """Turns bytes into decoded MAVLink messages (MAVLink 1 and 2), counting every rejection."""
+
+    def __init__(self, *, datagram: bool, counters: FrameCounters | None = None) -> None:
+        self._mav = new_dialect()
+        self._buf = bytearray()
+        self._datagram = datagram
+        self.counters = counters if counters is not None else FrameCounters()
+
+    def _try_decode(self, frame: bytearray) -> tuple[MavMessage | None, str | None]:
+        if frame[0] == MAGIC_V2 and frame[2] & ~_IFLAG_SIGNED:
+            return None, "bad_header"  # unknown incompatibility flags: cannot be parsed
+        try:
+            msg = self._mav.decode(frame)
+        except mavlink_dialect.MAVError as err:
+            return None, ("bad_crc" if "CRC" in err.message else "bad_header")
+        except (struct.error, ValueError, IndexError, TypeError) as err:  # defensive: dialect bugs
+            logger.debug("undecodable frame", extra={"error": str(err)})
+            return None, "bad_header"
+        if msg.get_msgId() == mavlink_dialect.MAVLINK_MSG_ID_UNKNOWN:
+            return None, "unknown_message"
+        return msg, None
+
+    def feed(self, data: bytes | bytearray) -> list[MavMessage]:
+        """Add bytes; return the messages completed by them (in order).
+
+        In datagram mode ``data`` is one whole datagram and nothing carries over.
+        """
+        buf = self._buf
+        buf.extend(data)
+        out: list[MavMessage] = []
+        p = 0
+        n = len(buf)
+        counters = self.counters
+        while p < n:
+            b = buf[p]
+            if b not in (MAGIC_V2, MAGIC_V1):
+                q1 = buf.find(MAGIC_V2, p)
+                q2 = buf.find(MAGIC_V1, p)
+                q = min(x for x in (q1, q2, n) if x >= 0)
+                counters.add("garbage_bytes", q - p)
+                p = q
+                continue
+            length = _frame_length(buf, p, n)
+            if length is None or p + length > n:
+                break  # incomplete
+            msg, reason = self._try_decode(buf[p : p + length])
+            if msg is not None:
+                out.append(msg)
+                counters.add("frames_ok")
+                p += length
+                continue
+            assert reason is not None
+            counters.add(reason)
+            if (
+                reason == "unknown_message"
+                or (p + length < n and buf[p + length] in (MAGIC_V1, MAGIC_V2))
+                or (p + length == n and self._datagram)
+            ):
+                p += length  # intact frame boundaries: skip the whole frame
+            else:
+                p += 1  # corrupt length: resync on the next magic byte
+        if self._datagram:
+            if p < n:
+                counters.add("truncated")
+            self._buf = bytearray()
+        else:
+            del buf[:p]
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class TlogRecord:
+    """One decoded frame of a ``.tlog`` with its host timestamp (µs since the UNIX epoch)."""
+
+    t_host_us: int
+    msg: MavMessage
+    offset: int
+
+
+def iter_tlog(data: bytes, counters: FrameCounters | None = None) -> Iterator[TlogRecord]:
+    """Decode a ``.tlog`` image: records of an 8-byte big-endian µs timestamp and a frame.
+
+    A record whose frame fails to decode is counted and skipped as a whole when the next
+    record's frame starts where expected; otherwise we resync on the next offset where
+    a frame decodes (the 8 bytes before it are its timestamp). ``counters`` gets the
+    same reasons as :class:`FrameDecoder`, plus ``tlog_resync_bytes``.
+    """
+    ctr = counters if counters is not None else FrameCounters()
+    dec = FrameDecoder(datagram=True, counters=FrameCounters())  # only for _try_decode
+    n = len(data)
+    p = 0
+    view = memoryview(data)
+
+    def frame_at(q: int) -> tuple[int | None, MavMessage | None, str | None]:
+        if q >= n or data[q] not in (MAGIC_V1, MAGIC_V2):
+            return None, None, "bad_header"
+        length = _frame_length(data, q, n)
+        if length is None or q + length > n:
+            return length, None, "truncated"
+        msg, reason = dec._try_decode(bytearray(view[q : q + length]))
+        return length, msg, reason
+
+    while p + 8 < n:
+        (t_us,) = _TLOG_STAMP.unpack_from(data, p)
+        length, msg, reason = frame_at(p + 8)
+        if msg is not None and length is not None:
+            ctr.add("frames_ok")
+            yield TlogRecord(t_us, msg, p)
+            p += 8 + length
+            continue
+        assert reason is not None
+        ctr.add(reason)
+        if length is not None and reason in ("bad_crc", "unknown_message", "bad_header"):
+            nxt = p + 8 + length
+            if nxt + 8 < n and data[nxt + 8] in (MAGIC_V1, MAGIC_V2):
+                p = nxt
+                continue
+        # resync: the next magic byte (at least 8 bytes in) where a frame decodes
+        q = p + 9
+        while True:
+            q1 = data.find(b"\xfd", q)
+            q2 = data.find(b"\xfe", q)
+            cands = [x for x in (q1, q2) if x >= 0]
+            if not cands:
+                q = n
+                break
+            q = min(cands)
+            _, m2, _ = frame_at(q)
+            if m2 is not None:
+                break
+            q += 1
+        ctr.add("tlog_resync_bytes", max(0, q - 8 - p))
+        p = q - 8
+    if 0 < n - p < 8 + _HEADER_V1 + 2 and p < n:
+        ctr.add("truncated")

@@ -1,0 +1,208 @@
+"""Per-vehicle ingest: decoded messages -> ordered, typed samples, one stream per vehicle.
+
+:class:`Ingest` owns, for every vehicle (MAVLink system id) it has admitted, the clock
+(:class:`~glmav_observer.ingest.clock.VehicleClock`), the counters and the rate monitor.
+A vehicle is created on its first sample message (``ATTITUDE``, an IMU message,
+``LOCAL_POSITION_NED``, ``SIM_STATE``), so ground stations in the same stream never
+become vehicles. The number of vehicles is capped: a new system id beyond the cap
+evicts the vehicle idle longest if it has been silent for ``evict_idle_s`` (host
+time), otherwise the newcomer is dropped and counted (an unknown-sysid flood cannot
+grow memory or disturb the vehicles being estimated).
+
+When several IMU messages arrive, the best source wins (HIGHRES_IMU > SCALED_IMU >
+RAW_IMU): samples from a worse source are dropped (``imu_superseded``) until the
+better one has been silent for ``imu_fallback_s`` of vehicle time.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from glmav_observer.ingest.clock import Admission, ClockConfig, VehicleClock
+from glmav_observer.ingest.convert import (
+    SAMPLE_MESSAGES,
+    ConversionError,
+    RawImuScale,
+    message_time_us,
+    to_sample,
+)
+from glmav_observer.ingest.rates import RateMonitor, RateRequest
+from glmav_observer.ingest.samples import ImuSample, ImuSource, Sample
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleReset:
+    """The vehicle's clock restarted (reboot) or jumped: its estimator starts afresh."""
+
+    sysid: int
+    t_boot_s: float
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class NewVehicle:
+    """A system id seen for the first time (its estimator is to be created)."""
+
+    sysid: int
+    compid: int
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleEvicted:
+    """A vehicle removed to make room (idle beyond ``evict_idle_s``)."""
+
+    sysid: int
+
+
+IngestEvent = Sample | VehicleReset | NewVehicle | VehicleEvicted
+
+
+@dataclass(frozen=True, slots=True)
+class IngestConfig:
+    """Ingest settings (``[ingest]`` of ``configs/service.toml``)."""
+
+    max_vehicles: int = 8
+    evict_idle_s: float = 10.0
+    imu_fallback_s: float = 1.0
+    clock: ClockConfig = field(default_factory=ClockConfig)
+    raw_imu_default: RawImuScale = field(default_factory=RawImuScale)
+    raw_imu_by_sysid: Mapping[int, RawImuScale] = field(default_factory=dict)
+    rates_hz: Mapping[str, float] = field(default_factory=dict)
+    rate_window_s: float = 2.0
+    rate_shortfall_ratio: float = 0.8
+    rate_retry_s: float = 5.0
+
+
+@dataclass
+class VehicleInput:
+    """Ingest state of one vehicle."""
+
+    sysid: int
+    compid: int
+    clock: VehicleClock
+    counters: collections.Counter[str]
+    rates: RateMonitor
+    raw_scale: RawImuScale
+    t_host_last_s: float
+    imu_source: ImuSource | None = None
+    imu_source_t_s: float = 0.0
+
+
+class Ingest:
+    """Turns decoded messages into per-vehicle samples in vehicle-time order."""
+
+    def __init__(self, config: IngestConfig) -> None:
+        self.config = config
+        self.vehicles: dict[int, VehicleInput] = {}
+        #: counters not attributable to an admitted vehicle
+        self.counters: collections.Counter[str] = collections.Counter()
+
+    def _new_vehicle(self, sysid: int, compid: int, t_host_s: float) -> VehicleInput | None:
+        cfg = self.config
+        if len(self.vehicles) >= cfg.max_vehicles:
+            idle = min(self.vehicles.values(), key=lambda v: v.t_host_last_s)
+            if t_host_s - idle.t_host_last_s < cfg.evict_idle_s:
+                self.counters["vehicle_cap_dropped"] += 1
+                return None
+            del self.vehicles[idle.sysid]
+            self.counters["evicted"] += 1
+            logger.warning("vehicle evicted", extra={"sysid": idle.sysid, "new_sysid": sysid})
+        counters: collections.Counter[str] = collections.Counter()
+        v = VehicleInput(
+            sysid=sysid,
+            compid=compid,
+            clock=VehicleClock(cfg.clock, counters),
+            counters=counters,
+            rates=RateMonitor(
+                cfg.rates_hz, cfg.rate_window_s, cfg.rate_shortfall_ratio, cfg.rate_retry_s
+            ),
+            raw_scale=cfg.raw_imu_by_sysid.get(sysid, cfg.raw_imu_default),
+            t_host_last_s=t_host_s,
+        )
+        self.vehicles[sysid] = v
+        logger.info("new vehicle", extra={"sysid": sysid, "compid": compid})
+        return v
+
+    def on_message(self, msg: Any, t_host_s: float) -> list[IngestEvent]:
+        """One decoded message that arrived at host time ``t_host_s``; the events it causes."""
+        name: str = msg.get_type()
+        sysid = int(msg.get_srcSystem())
+        v = self.vehicles.get(sysid)
+        if name == "SYSTEM_TIME" and v is not None:
+            v.clock.note_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
+            return []
+        if name not in SAMPLE_MESSAGES:
+            self.counters["ignored_messages"] += 1
+            return []
+        events: list[IngestEvent] = []
+        compid = int(msg.get_srcComponent())
+        if v is None:
+            before = set(self.vehicles)
+            v = self._new_vehicle(sysid, compid, t_host_s)
+            if v is None:
+                return []
+            events.extend(VehicleEvicted(s) for s in before - set(self.vehicles))
+            events.append(NewVehicle(sysid, compid))
+        elif compid != v.compid:
+            v.counters["other_component"] += 1
+            return events
+        v.t_host_last_s = t_host_s
+        v.counters[f"rx_{name}"] += 1
+        t_us, kind = message_time_us(msg)
+        t_s = v.clock.to_boot_s(t_us, kind)
+        if t_s is None:
+            return events
+        if name != "SIM_STATE":
+            adm = v.clock.admit(name, t_s)
+            if adm is Admission.RESET:
+                events.append(VehicleReset(sysid, t_s, "clock_reset"))
+                v.imu_source = None
+            elif adm not in (Admission.ACCEPT, Admission.REORDERED):
+                return events
+        try:
+            sample = to_sample(msg, t_s, v.raw_scale)
+        except ConversionError as err:
+            v.counters[err.reason] += 1
+            logger.debug("sample rejected", extra={"sysid": sysid, "reason": err.reason})
+            return events
+        if isinstance(sample, ImuSample) and not self._imu_wanted(v, sample):
+            return events
+        v.rates.note(name, t_s)
+        events.append(sample)
+        return events
+
+    def _imu_wanted(self, v: VehicleInput, s: ImuSample) -> bool:
+        best = v.imu_source
+        if (
+            best is None
+            or s.source >= best
+            or s.t_boot_s - v.imu_source_t_s > self.config.imu_fallback_s
+        ):
+            if best is not None and s.source != best:
+                logger.info(
+                    "IMU source changed",
+                    extra={"sysid": v.sysid, "from": best.name, "to": s.source.name},
+                )
+            v.imu_source = s.source
+            v.imu_source_t_s = s.t_boot_s
+            return True
+        v.counters["imu_superseded"] += 1
+        return False
+
+    def rate_requests(self, sysid: int, first: bool) -> list[RateRequest]:
+        """SET_MESSAGE_INTERVAL requests due for ``sysid`` (initial ones, or shortfalls)."""
+        v = self.vehicles.get(sysid)
+        if v is None or v.clock.t_now_s is None:
+            return []
+        if first:
+            return v.rates.initial_requests(sysid, v.compid, v.clock.t_now_s)
+        reqs = v.rates.shortfalls(sysid, v.compid, v.clock.t_now_s)
+        if reqs:
+            v.counters["rate_rerequest"] += len(reqs)
+        return reqs

@@ -1,0 +1,67 @@
+"""Typed samples in SI units: what ingest hands to estimation.
+
+Every sample carries the MAVLink system id of the vehicle that sent it and the
+vehicle's own boot-clock time ``t_boot_s`` (never the host clock). Frames and units
+are in the names: NED earth frame, FRD body frame, ZYX Euler angles (MAVLink
+``ATTITUDE``), m/s, m/s², rad, rad/s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+Vec3 = tuple[float, float, float]
+
+
+class ImuSource(IntEnum):
+    """The IMU message a specific force came from; a larger value is preferred."""
+
+    RAW_IMU = 1
+    SCALED_IMU = 2
+    HIGHRES_IMU = 3
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeSample:
+    """``ATTITUDE``: ZYX Euler angles (roll, pitch, yaw) and FRD body rates."""
+
+    sysid: int
+    t_boot_s: float
+    euler_rad: Vec3
+    omega_body_radps: Vec3
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    """Specific force (accelerometer, FRD) and gyro rates from one of the IMU messages."""
+
+    sysid: int
+    t_boot_s: float
+    f_body_mps2: Vec3
+    omega_body_radps: Vec3
+    source: ImuSource
+
+
+@dataclass(frozen=True, slots=True)
+class VelocitySample:
+    """``LOCAL_POSITION_NED``: earth-frame position and velocity; NaN marks a missing axis."""
+
+    sysid: int
+    t_boot_s: float
+    position_ned_m: Vec3
+    v_ned_mps: Vec3
+
+
+@dataclass(frozen=True, slots=True)
+class TruthSample:
+    """``SIM_STATE`` (simulator truth, metrics only). SIM_STATE carries no time field:
+    ``t_boot_s`` is the latest vehicle time seen from that vehicle when it arrived."""
+
+    sysid: int
+    t_boot_s: float
+    euler_rad: Vec3
+    v_ned_mps: Vec3
+
+
+Sample = AttitudeSample | ImuSample | VelocitySample | TruthSample
