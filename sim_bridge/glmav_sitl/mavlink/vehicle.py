@@ -1,0 +1,384 @@
+"""The simulated vehicle's MAVLink 2 side: streams, commands, tlog.
+
+Messages (``pymavlink.dialects.v20.common``; one encoder, so one sequence number
+across links), all stamped with the vehicle's own clock (sim time since boot):
+
+==================  ================================================================
+HEARTBEAT           MAV_TYPE_COAXIAL, MAV_AUTOPILOT_GENERIC; armed while rotors turn
+RAW_IMU             accel in ``raw_accel_lsb_mps2`` units (default 1 mG = 9.80665e-3
+                    m/s^2), gyro in ``raw_gyro_lsb_radps`` (default 1 mrad/s), int16
+                    rounded and saturated; FRD; ``time_usec`` = sim time
+SCALED_IMU          accel mG, gyro mrad/s (the message's fixed units), ``time_boot_ms``
+HIGHRES_IMU         accel m/s^2, gyro rad/s (float), ``fields_updated`` = 0x3F
+ATTITUDE            ZYX roll, pitch, yaw (rad) and body rates (rad/s) with noise
+LOCAL_POSITION_NED  x, y, z (m) and vx, vy, vz (m/s, NED) with noise and faults
+SIM_STATE           truth: q1..q4 = (w, x, y, z) body->NED; roll, pitch, yaw;
+                    xacc.. = true specific force FRD (m/s^2); xgyro.. = true rates;
+                    lat, lon (deg, float) / lat_int, lon_int (degE7) / alt (m AMSL)
+                    from the home point (flat earth); vn, ve, vd = true NED velocity
+                    (m/s); std_dev_horz / vert = the configured position noise
+==================  ================================================================
+
+Commands (COMMAND_LONG and COMMAND_INT addressed to our system or broadcast):
+SET_MESSAGE_INTERVAL (511), GET_MESSAGE_INTERVAL (510), REQUEST_MESSAGE (512, e.g.
+AUTOPILOT_VERSION 148), REQUEST_AUTOPILOT_CAPABILITIES (520) are ACCEPTED (or
+DENIED for a bad argument); every other command gets MAV_RESULT_UNSUPPORTED.
+Malformed bytes and unknown messages are counted and ignored.
+
+tlog: each message as an 8-byte big-endian microsecond timestamp followed by the
+packet, timestamps ``start_unix_s + t_sim`` so that a seeded run is reproducible.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import IO, Any
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from glmav_sitl.mavlink.links import Link
+from glmav_sitl.scenario import STREAM_IDS
+from glmav_sitl.simulator import Simulator
+
+log = logging.getLogger(__name__)
+
+MSG_AUTOPILOT_VERSION = 148
+CMD_GET_MESSAGE_INTERVAL = 510
+CMD_SET_MESSAGE_INTERVAL = 511
+CMD_REQUEST_MESSAGE = 512
+CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
+_MAVLINK_EPOCH_UNIX_S = 1420070400  # 2015-01-01, origin of signing timestamps
+_EARTH_RADIUS_M = 6378137.0
+_I16 = 32767
+
+
+def _i16(x: float) -> int:
+    if not math.isfinite(x):
+        return 0
+    v = round(x)
+    return -_I16 if v < -_I16 else (_I16 if v > _I16 else v)
+
+
+@dataclass
+class Stats:
+    sent: dict[str, int] = field(default_factory=dict)
+    received: int = 0
+    bad_input: int = 0
+    commands: int = 0
+
+
+class _Fanout:
+    """The file object of the encoder: every packet to each link and the tlog."""
+
+    def __init__(self, links: Sequence[Link], tlog: IO[bytes] | None) -> None:
+        self.links = list(links)
+        self.tlog = tlog
+        self.stamp_us = 0
+
+    def write(self, buf: bytes) -> None:
+        for link in self.links:
+            link.write(buf)
+        if self.tlog is not None:
+            self.tlog.write(struct.pack(">Q", self.stamp_us) + bytes(buf))
+
+
+class MavlinkVehicle:
+    """Encodes the simulator's streams and answers commands on ``links``."""
+
+    def __init__(
+        self,
+        sim: Simulator,
+        links: Sequence[Link],
+        *,
+        rates_hz: dict[str, float],
+        sysid: int,
+        compid: int = 1,
+        tlog: IO[bytes] | None = None,
+        signing_key: bytes | None = None,
+    ) -> None:
+        self.sim = sim
+        self.sysid = sysid
+        self.compid = compid
+        self.start_unix_us = round(sim.sitl.start_unix_s * 1e6)
+        self.out = _Fanout(links, tlog)
+        self.mav = mavlink2.MAVLink(self.out, srcSystem=sysid, srcComponent=compid)
+        self.signing_key = signing_key
+        if signing_key is not None:
+            if len(signing_key) != 32:
+                raise ValueError("the signing key must be 32 bytes")
+            self.mav.signing.secret_key = signing_key
+            self.mav.signing.link_id = 0
+            self.mav.signing.sign_outgoing = True
+        self.parsers = [self._new_parser() for _ in links]
+        self.links = list(links)
+        self.default_interval_us = {k: self._interval(v) for k, v in rates_hz.items()}
+        self.interval_us = dict(self.default_interval_us)
+        self.next_due_us = {k: 0 for k in self.interval_us}
+        self._next_any_us = 0
+        self.stats = Stats(sent={k: 0 for k in STREAM_IDS})
+        home = sim.sitl
+        self._lat0 = home.home_lat_deg
+        self._lon0 = home.home_lon_deg
+        self._alt0 = home.home_alt_m
+        self._order = [k for k in STREAM_IDS if k in self.interval_us]
+        self._by_id = {v: k for k, v in STREAM_IDS.items()}
+
+    def _new_parser(self) -> Any:
+        p = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=self.compid)
+        p.robust_parsing = True
+        return p
+
+    @staticmethod
+    def _interval(rate_hz: float) -> int:
+        return 0 if rate_hz <= 0.0 else max(1, round(1e6 / rate_hz))
+
+    # ------------------------------------------------------------------ output
+    def _send(self, msg: Any) -> None:
+        t_us = self.sim.t_us
+        self.out.stamp_us = self.start_unix_us + t_us
+        if self.signing_key is not None:
+            ts = (self.start_unix_us // 1_000_000 - _MAVLINK_EPOCH_UNIX_S) * 100_000 + t_us // 10
+            self.mav.signing.timestamp = max(self.mav.signing.timestamp, ts)
+        self.mav.send(msg)
+
+    def poll_streams(self) -> None:
+        """Emit every stream that is due at the simulator's current time."""
+        t_us = self.sim.t_us
+        if t_us < self._next_any_us:
+            return
+        nxt = 1 << 62
+        for name in self._order:
+            iv = self.interval_us[name]
+            if iv <= 0:
+                continue
+            due = self.next_due_us[name]
+            if t_us >= due:
+                self.emit(name)
+                due += iv
+                if due <= t_us:  # fell behind (rate above the step rate): skip, do not burst
+                    due = t_us + iv
+                self.next_due_us[name] = due
+            nxt = min(nxt, due)
+        self._next_any_us = nxt
+
+    def set_interval(self, name: str, interval_us: int) -> None:
+        self.interval_us[name] = interval_us
+        self.next_due_us[name] = self.sim.t_us
+        self._next_any_us = 0
+
+    def emit(self, name: str) -> None:
+        """Sample the sensors for ``name`` and send the message now."""
+        sim = self.sim
+        tr = sim.truth()
+        t_us = sim.t_us
+        t_ms = t_us // 1000
+        rate = 1e6 / self.interval_us[name] if self.interval_us.get(name, 0) > 0 else 0.0
+
+        if name == "heartbeat":
+            armed = tr.rotor_radps[0] > 1.0 or tr.rotor_radps[1] > 1.0
+            msg = mavlink2.MAVLink_heartbeat_message(
+                mavlink2.MAV_TYPE_COAXIAL,
+                mavlink2.MAV_AUTOPILOT_GENERIC,
+                mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                | (mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0),
+                0,
+                mavlink2.MAV_STATE_ACTIVE if armed else mavlink2.MAV_STATE_STANDBY,
+                3,
+            )
+        elif name in ("raw_imu", "scaled_imu", "highres_imu"):
+            gyro, acc = sim.imu.sample(tr.t_s, tr.omega_body_radps, tr.f_body_mps2, rate)
+            if name == "highres_imu":
+                msg = mavlink2.MAVLink_highres_imu_message(
+                    t_us,
+                    acc[0],
+                    acc[1],
+                    acc[2],
+                    gyro[0],
+                    gyro[1],
+                    gyro[2],
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0x3F,
+                )
+            elif name == "raw_imu":
+                c = sim.sensor_config.imu
+                ka, kg = 1.0 / c.raw_accel_lsb_mps2, 1.0 / c.raw_gyro_lsb_radps
+                msg = mavlink2.MAVLink_raw_imu_message(
+                    t_us,
+                    _i16(acc[0] * ka),
+                    _i16(acc[1] * ka),
+                    _i16(acc[2] * ka),
+                    _i16(gyro[0] * kg),
+                    _i16(gyro[1] * kg),
+                    _i16(gyro[2] * kg),
+                    0,
+                    0,
+                    0,
+                )
+            else:
+                ka = 1000.0 / 9.80665  # mG
+                msg = mavlink2.MAVLink_scaled_imu_message(
+                    t_ms,
+                    _i16(acc[0] * ka),
+                    _i16(acc[1] * ka),
+                    _i16(acc[2] * ka),
+                    _i16(gyro[0] * 1000.0),
+                    _i16(gyro[1] * 1000.0),
+                    _i16(gyro[2] * 1000.0),
+                    0,
+                    0,
+                    0,
+                )
+        elif name == "attitude":
+            eul, w = sim.attitude_sensor.sample(tr.euler_rad, tr.omega_body_radps, rate)
+            msg = mavlink2.MAVLink_attitude_message(t_ms, eul[0], eul[1], eul[2], w[0], w[1], w[2])
+        elif name == "local_position_ned":
+            pos, vel = sim.position_sensor.sample(tr.t_s, tr.p_ned_m, tr.v_ned_mps)
+            msg = mavlink2.MAVLink_local_position_ned_message(
+                t_ms, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2]
+            )
+        elif name == "sim_state":
+            lat = self._lat0 + math.degrees(tr.p_ned_m[0] / _EARTH_RADIUS_M)
+            lon = self._lon0 + math.degrees(
+                tr.p_ned_m[1] / (_EARTH_RADIUS_M * math.cos(math.radians(self._lat0)))
+            )
+            q = tr.q
+            e = tr.euler_rad
+            f = tr.f_body_mps2
+            w = tr.omega_body_radps
+            v = tr.v_ned_mps
+            sc = sim.sensor_config
+            k = sc.noise_scale if sc.noise else 0.0
+            msg = mavlink2.MAVLink_sim_state_message(
+                q[0],
+                q[1],
+                q[2],
+                q[3],
+                e[0],
+                e[1],
+                e[2],
+                f[0],
+                f[1],
+                f[2],
+                w[0],
+                w[1],
+                w[2],
+                lat,
+                lon,
+                self._alt0 - tr.p_ned_m[2],
+                sc.position_sigma_m * k,
+                sc.position_sigma_m * k,
+                v[0],
+                v[1],
+                v[2],
+                round(lat * 1e7),
+                round(lon * 1e7),
+            )
+        else:
+            return
+        self._send(msg)
+        self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+
+    def send_autopilot_version(self) -> None:
+        self._send(
+            mavlink2.MAVLink_autopilot_version_message(
+                mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2,
+                (0 << 24) | (1 << 16) | (0 << 8) | 255,  # 0.1.0 release
+                0,
+                0,
+                0,
+                [0] * 8,
+                [0] * 8,
+                [0] * 8,
+                0,
+                0,
+                self.sysid,
+                [0] * 18,
+            )
+        )
+
+    # ------------------------------------------------------------------- input
+    def poll_inputs(self) -> None:
+        """Read every link, parse, and answer what is addressed to us."""
+        for i, link in enumerate(self.links):
+            for data in link.read():
+                try:
+                    msgs = self.parsers[i].parse_buffer(data) or []
+                except Exception as e:  # pymavlink raises bare MAVError / struct errors
+                    self.stats.bad_input += 1
+                    log.debug("link %s: bad input (%s)", link.name, e)
+                    self.parsers[i] = self._new_parser()
+                    continue
+                for m in msgs:
+                    self.handle(m)
+
+    def handle(self, m: Any) -> None:
+        t = m.get_type()
+        if t == "BAD_DATA":
+            self.stats.bad_input += 1
+            return
+        self.stats.received += 1
+        if t not in ("COMMAND_LONG", "COMMAND_INT"):
+            return
+        if m.target_system not in (0, self.sysid) or m.target_component not in (0, self.compid):
+            return
+        self.stats.commands += 1
+        result = self.command(int(m.command), [m.param1, m.param2, m.param3, m.param4])
+        self._send(
+            mavlink2.MAVLink_command_ack_message(
+                m.command, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()
+            )
+        )
+
+    def command(self, cmd: int, params: Sequence[float]) -> int:
+        """Execute a command; returns a MAV_RESULT."""
+        if cmd == CMD_SET_MESSAGE_INTERVAL:
+            name = self._by_id.get(int(params[0]))
+            if name is None or (name == "heartbeat" and params[1] < 0):
+                return int(
+                    mavlink2.MAV_RESULT_UNSUPPORTED if name is None else mavlink2.MAV_RESULT_DENIED
+                )
+            iv = params[1]
+            if iv < -1 or not math.isfinite(iv):
+                return int(mavlink2.MAV_RESULT_DENIED)
+            self.set_interval(
+                name,
+                0
+                if iv == -1
+                else (self.default_interval_us.get(name, 0) if iv == 0 else round(iv)),
+            )
+            return int(mavlink2.MAV_RESULT_ACCEPTED)
+        if cmd == CMD_GET_MESSAGE_INTERVAL:
+            name = self._by_id.get(int(params[0]))
+            if name is None:
+                return int(mavlink2.MAV_RESULT_UNSUPPORTED)
+            iv = self.interval_us.get(name, 0)
+            self._send(
+                mavlink2.MAVLink_message_interval_message(STREAM_IDS[name], iv if iv > 0 else -1)
+            )
+            return int(mavlink2.MAV_RESULT_ACCEPTED)
+        if cmd == CMD_REQUEST_MESSAGE:
+            mid = int(params[0])
+            if mid == MSG_AUTOPILOT_VERSION:
+                self.send_autopilot_version()
+                return int(mavlink2.MAV_RESULT_ACCEPTED)
+            name = self._by_id.get(mid)
+            if name is None:
+                return int(mavlink2.MAV_RESULT_UNSUPPORTED)
+            if name not in self.interval_us:
+                self.interval_us[name] = 0
+            self.emit(name)
+            return int(mavlink2.MAV_RESULT_ACCEPTED)
+        if cmd == CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self.send_autopilot_version()
+            return int(mavlink2.MAV_RESULT_ACCEPTED)
+        return int(mavlink2.MAV_RESULT_UNSUPPORTED)

@@ -1,0 +1,168 @@
+"""The simulator core: state, fixed-step RK4, controller, wind and sensors (no I/O).
+
+``Simulator.step()`` advances one physics step ``dt_s``; the controller and the wind
+update at the control rate (zero-order hold between ticks). Time is kept as an
+integer number of microseconds (``t_us``) so that stream schedules never drift.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from glmav_sitl.control.controller import Controller
+from glmav_sitl.dynamics.frames import euler_from_quat
+from glmav_sitl.dynamics.model import (
+    ModelOptions,
+    initial_state,
+    make_derivative,
+    rk4_step,
+    trim_rotor_speeds,
+)
+from glmav_sitl.params import VehicleParams, load_vehicle_params
+from glmav_sitl.scenario import (
+    Scenario,
+    SensorConfig,
+    SitlConfig,
+    effective_sensor_config,
+    load_scenario,
+    load_sitl_config,
+)
+from glmav_sitl.sensors.models import AttitudeSensor, ImuModel, PositionVelocitySensor
+from glmav_sitl.wind import WindModel
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class TruthState:
+    """The true state at ``t_s`` (SI; NED earth, FRD body)."""
+
+    t_s: float
+    p_ned_m: Vec3
+    v_body_mps: Vec3
+    v_ned_mps: Vec3
+    q: tuple[float, float, float, float]  # (w, x, y, z) body -> NED
+    euler_rad: Vec3  # ZYX (phi, theta, psi)
+    omega_body_radps: Vec3
+    f_body_mps2: Vec3  # specific force (F - weight)/m, what an ideal accelerometer reads
+    wind_ned_mps: Vec3
+    rotor_radps: tuple[float, float]
+    swash_rad: tuple[float, float]
+
+
+class Simulator:
+    """Fly one scenario. ``seed`` drives every random draw (sensors, turbulence, faults)."""
+
+    def __init__(
+        self,
+        scenario: Scenario | str,
+        *,
+        params: VehicleParams | None = None,
+        sitl: SitlConfig | None = None,
+        seed: int = 0,
+        dt_s: float | None = None,
+        model_options: ModelOptions | None = None,
+    ) -> None:
+        self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
+        self.params = params or load_vehicle_params()
+        self.sitl = sitl or load_sitl_config()
+        sc = self.scenario
+        dt = dt_s if dt_s is not None else (sc.dt_s if sc.dt_s is not None else self.sitl.dt_s)
+        self.dt_us = round(dt * 1e6)
+        if self.dt_us < 1:
+            raise ValueError(f"dt_s = {dt} s is below 1 us")
+        self.dt_s = self.dt_us * 1e-6
+        ctl_us = round(1e6 / self.sitl.control_rate_hz)
+        self.control_every = max(1, round(ctl_us / self.dt_us))  # steps per control tick
+        self.model_options = model_options or ModelOptions()
+        self._f = make_derivative(self.params, self.model_options)
+        trim = trim_rotor_speeds(self.params, self.model_options)
+        self.trim_rotor_radps = trim
+        rotor0 = sc.rotor_radps if sc.rotor_radps is not None else trim
+        self.x = initial_state(
+            sc.position_ned_m,
+            sc.velocity_body_mps,
+            sc.euler_rad,
+            sc.omega_body_radps,
+            rotor_radps=rotor0,
+            swash_rad=sc.swash_rad,
+        )
+        ss = np.random.SeedSequence(seed)
+        r_imu, r_att, r_pos, r_fault, r_wind = (np.random.default_rng(s) for s in ss.spawn(5))
+        self.sensor_config: SensorConfig = effective_sensor_config(self.sitl, sc)
+        self.imu = ImuModel(self.sensor_config, r_imu, sc.faults)
+        self.attitude_sensor = AttitudeSensor(self.sensor_config, r_att)
+        self.position_sensor = PositionVelocitySensor(self.sensor_config, r_pos, r_fault, sc.faults)
+        self.wind = WindModel(sc.wind, r_wind)
+        self.wind_ned: list[float] = list(self.wind.update(0.0))
+        self.controller: Controller | None = None
+        if sc.control == "closed_loop":
+            self.controller = Controller(
+                self.params, self.sitl.gains, sc.setpoints, self.control_every * self.dt_s
+            )
+            self.u = self.controller.update(0.0, self.x)
+        else:
+            ol = sc.open_loop_rotor_radps if sc.open_loop_rotor_radps is not None else trim
+            self.u = [ol[0], ol[1], sc.open_loop_swash_rad[0], sc.open_loop_swash_rad[1]]
+        self.n_steps = 0
+        self.t_us = 0
+        self._truth_cache: TruthState | None = None
+
+    @property
+    def t_s(self) -> float:
+        return self.t_us * 1e-6
+
+    def step(self) -> None:
+        """Advance one physics step (RK4, inputs and wind held)."""
+        self.x = rk4_step(self._f, self.x, self.u, self.wind_ned, self.dt_s)
+        self.n_steps += 1
+        self.t_us = self.n_steps * self.dt_us
+        self._truth_cache = None
+        if self.n_steps % self.control_every == 0:
+            t = self.t_s
+            self.wind_ned = list(self.wind.update(t))
+            if self.controller is not None:
+                self.u = self.controller.update(t, self.x)
+        if not math.isfinite(self.x[2]):
+            raise FloatingPointError(f"state diverged at t = {self.t_s:.4f} s")
+
+    def run_for(self, duration_s: float) -> None:
+        for _ in range(round(duration_s / self.dt_s)):
+            self.step()
+
+    def truth(self) -> TruthState:
+        """The true state now (cached until the next step)."""
+        if self._truth_cache is not None:
+            return self._truth_cache
+        x = self.x
+        _, f_body = self._f(x, self.u, self.wind_ned)
+        qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+        vu, vv, vw = x[3], x[4], x[5]
+        v_ned = (
+            (1 - 2 * (qy * qy + qz * qz)) * vu
+            + 2 * (qx * qy - qw * qz) * vv
+            + 2 * (qx * qz + qw * qy) * vw,
+            2 * (qx * qy + qw * qz) * vu
+            + (1 - 2 * (qx * qx + qz * qz)) * vv
+            + 2 * (qy * qz - qw * qx) * vw,
+            2 * (qx * qz - qw * qy) * vu
+            + 2 * (qy * qz + qw * qx) * vv
+            + (1 - 2 * (qx * qx + qy * qy)) * vw,
+        )
+        self._truth_cache = TruthState(
+            t_s=self.t_s,
+            p_ned_m=(x[0], x[1], x[2]),
+            v_body_mps=(vu, vv, vw),
+            v_ned_mps=v_ned,
+            q=(qw, qx, qy, qz),
+            euler_rad=euler_from_quat(qw, qx, qy, qz),
+            omega_body_radps=(x[10], x[11], x[12]),
+            f_body_mps2=f_body,
+            wind_ned_mps=(self.wind_ned[0], self.wind_ned[1], self.wind_ned[2]),
+            rotor_radps=(x[13], x[14]),
+            swash_rad=(x[15], x[16]),
+        )
+        return self._truth_cache
