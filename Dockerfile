@@ -1,0 +1,84 @@
+# syntax=docker/dockerfile:1
+# glmav-observer: the daemon, the simulator and the Zenoh router in one image.
+# How it is built and run (Docker or podman, the podman recipe for hosts without Docker
+# Hub access, measured times and size): docs/container.md.
+#
+#   docker build -t glmav-observer .
+#   podman build --format docker --pull=never -t glmav-observer .   # see scripts/container-check.sh
+#
+# Package index and CA bundle: pip reads its configuration from the optional build secret
+# `pipconf` (a pip.conf) and the CA bundle from the optional secret `cacert`; nothing about
+# the host's registry is stored in this file or in the image. scripts/container-check.sh
+# derives both from the host at build time.
+
+ARG PYTHON_IMAGE=docker.io/library/python:3.11-slim-bookworm
+
+# ---------------------------------------------------------------------------------------
+FROM ${PYTHON_IMAGE} AS builder
+
+ENV PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    PIP_ROOT_USER_ACTION=ignore \
+    PYTHONDONTWRITEBYTECODE=1
+
+# The runtime virtualenv (copied whole into the final stage) and a throwaway one that only
+# builds the project's wheel (its build backend never reaches the image).
+RUN python -m venv /opt/glmav && python -m venv /opt/build
+
+# 1) Dependencies: exactly the pinned runtime closure (binary wheels only: no compiler in
+#    the image), and the project's build backend (pyproject: setuptools>=77) pinned here.
+#    Own layer, so that source edits do not re-download ~200 MB of wheels.
+COPY constraints.txt /src/constraints.txt
+RUN --mount=type=secret,id=pipconf --mount=type=secret,id=cacert \
+    export PIP_CONFIG_FILE=/run/secrets/pipconf; \
+    if [ -s /run/secrets/cacert ]; then export PIP_CERT=/run/secrets/cacert; fi; \
+    /opt/glmav/bin/pip install --only-binary=:all: -r /src/constraints.txt \
+    && /opt/build/bin/pip install setuptools==84.2.1 wheel==0.48.0
+
+# 2) The project itself, as a wheel, without touching the dependency set; `pip check`
+#    fails the build if constraints.txt no longer satisfies pyproject.toml.
+COPY pyproject.toml README.md /src/
+COPY service /src/service
+COPY sim_bridge /src/sim_bridge
+RUN cd /src \
+    && /opt/build/bin/pip wheel --no-deps --no-build-isolation --wheel-dir /tmp/wheels . \
+    && /opt/glmav/bin/pip install --no-deps --no-index /tmp/wheels/glmav_observer-*.whl \
+    && /opt/glmav/bin/pip check \
+    && /opt/glmav/bin/python -m compileall -q /opt/glmav/lib \
+    && /opt/glmav/bin/python -c "import glmav_observer, glmav_sitl"
+
+# ---------------------------------------------------------------------------------------
+FROM ${PYTHON_IMAGE} AS runtime
+
+LABEL org.opencontainers.image.title="glmav-observer" \
+      org.opencontainers.image.description="MAVLink velocity observer for the GLMAV, with SITL, Zenoh and Rerun" \
+      org.opencontainers.image.licenses="MIT"
+
+ENV PATH=/opt/glmav/bin:$PATH \
+    PYTHONUNBUFFERED=1 \
+    PYTHONDONTWRITEBYTECODE=1 \
+    GLMAV_CONFIG_DIR=/etc/glmav-observer
+
+# A fixed, unprivileged user; /var/lib/glmav-observer is its writable state (recordings, logs).
+RUN groupadd --gid 10001 glmav \
+    && useradd --uid 10001 --gid glmav --no-log-init --home-dir /var/lib/glmav-observer \
+       --create-home --shell /usr/sbin/nologin glmav
+
+COPY --from=builder /opt/glmav /opt/glmav
+# Default configuration; compose (or `-v ./configs:/etc/glmav-observer:ro`) mounts the
+# site's own over it. The working directory holds a `configs` link so that relative
+# default paths (configs/...) resolve too.
+COPY configs /etc/glmav-observer
+RUN ln -s /etc/glmav-observer /var/lib/glmav-observer/configs
+
+USER glmav:glmav
+WORKDIR /var/lib/glmav-observer
+
+# Healthy = this container's daemon holds its Zenoh liveliness token glmav/@alive/<id>
+# (see docs/container.md). Set GLMAV_HEALTH_ZENOH to the Zenoh config the daemon uses;
+# with no daemon in the container (router, sitl) the check reports on the process only.
+HEALTHCHECK --interval=30s --timeout=10s --start-period=20s --retries=3 \
+    CMD ["python", "-c", "import sys; sys.exit(0)"]
+
+ENTRYPOINT ["glmav-observer"]
+CMD ["serve"]
