@@ -1,0 +1,234 @@
+"""The bank (one vehicle) and the batched bank (many) against the pure zoh_step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from glmav_observer.estimation.bank import (
+    CONFIG_MASKS,
+    DEFAULT_GAMMA,
+    BatchedBank,
+    ObserverBank,
+)
+from glmav_observer.estimation.observer import (
+    NonFiniteInputError,
+    ShapeError,
+    e_exact,
+    e_matrix,
+    gamma_body_mps2,
+    zoh_step,
+)
+from glmav_observer.records import CONFIGS, LOST_AXIS_OF_CONFIG
+
+GAMMAS = np.array([DEFAULT_GAMMA[c] for c in CONFIGS])
+
+
+def _random_inputs(
+    rng: np.random.Generator, n: int, max_angle_rad: float = np.pi
+) -> dict[str, np.ndarray]:
+    """Random step inputs; ``max_angle_rad`` keeps the small-angle E (15) near its domain
+    (at ±π its entries reach ~30 and amplify rounding by as much)."""
+    y = rng.normal(scale=5.0, size=(n, 3))
+    y[rng.random(size=(n, 3)) < 0.1] = np.nan  # some axes missing
+    return {
+        "dt": rng.uniform(0.0, 0.2, size=n),
+        "euler": rng.uniform(-max_angle_rad, max_angle_rad, size=(n, 3)),
+        "omega": rng.normal(scale=1.0, size=(n, 3)),
+        "f": rng.normal(scale=3.0, size=(n, 3)) + np.array([0.0, 0.0, -9.81]),
+        "y": y,
+        "mask": rng.random(size=(n, 4, 3)) < 0.85,
+    }
+
+
+def test_config_masks_match_records() -> None:
+    axes = "ned"
+    for c, row in zip(CONFIGS, CONFIG_MASKS, strict=True):
+        lost = LOST_AXIS_OF_CONFIG[c]
+        assert [a for a, m in zip(axes, row, strict=True) if not m] == ([lost] if lost else [])
+    assert DEFAULT_GAMMA == {"full": 12.0, "c1": 90.0, "c2": 70.0, "c3": 70.0}
+
+
+@pytest.mark.parametrize("e_form", ["exact", "small_angle"])
+@pytest.mark.parametrize("mask_kind", ["none", "axis", "per_config"])
+def test_bank_equals_pure_function(e_form: str, mask_kind: str) -> None:
+    """Bank step == zoh_step with the bank's masks, for 300 random steps (NaN axes included).
+    The exact-E bank runs plain-float code, the pure function numpy: same closed form,
+    different rounding: agreement to 1e-12."""
+    rng = np.random.default_rng(11)
+    n = 300
+    inp = _random_inputs(rng, n, np.pi if e_form == "exact" else 0.3)
+    bank = ObserverBank(e_form=e_form)  # type: ignore[arg-type]
+    x = rng.normal(size=(4, 3))
+    bank.reset(x)
+    worst = 0.0
+    for k in range(n):
+        if mask_kind == "none":
+            allowed = None
+            allowed_arr = np.ones((4, 3), bool)
+        elif mask_kind == "axis":
+            allowed_arr = np.broadcast_to(inp["mask"][k, 0], (4, 3))
+            allowed = inp["mask"][k, 0]
+        else:
+            allowed = allowed_arr = inp["mask"][k]
+        bank.step(inp["dt"][k], inp["euler"][k], inp["omega"][k], inp["f"][k], inp["y"][k], allowed)
+        masks = CONFIG_MASKS & allowed_arr & np.isfinite(inp["y"][k])
+        np.testing.assert_array_equal(bank.last_meas_mask, masks)
+        E = e_matrix(inp["euler"][k], e_form)  # type: ignore[arg-type]
+        G = gamma_body_mps2(inp["f"][k], inp["euler"][k])
+        x = zoh_step(x, inp["omega"][k], G, E, inp["y"][k], masks, GAMMAS, inp["dt"][k],
+                     orthogonal_e=e_form == "exact")  # fmt: skip
+        worst = max(worst, float(np.abs(bank.x_hat_body_mps - x).max() / (1 + np.abs(x).max())))
+    assert worst <= 1e-12
+    np.testing.assert_allclose(bank.x_hat_ned_mps(), x @ E.T, atol=1e-12 * (1 + np.abs(x).max()))
+
+
+def test_bank_standard_fast_path_equals_generic_path() -> None:
+    """The unrolled four-configuration code == the per-configuration code (all-True mask
+    passed explicitly takes the generic plain-float path)."""
+    rng = np.random.default_rng(5)
+    a, b = ObserverBank(), ObserverBank()
+    x0 = rng.normal(size=(4, 3))
+    a.reset(x0)
+    b.reset(x0)
+    for _ in range(200):
+        args = (rng.uniform(0, 0.1), rng.normal(size=3), rng.normal(size=3),
+                rng.normal(size=3), rng.normal(size=3))  # fmt: skip
+        a.step(*args)
+        b.step(*args, meas_mask=np.ones(3, bool))
+    np.testing.assert_allclose(a.x_hat_body_mps, b.x_hat_body_mps, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("e_form", ["exact", "small_angle"])
+def test_batched_equals_loop_of_banks(e_form: str) -> None:
+    rng = np.random.default_rng(7)
+    nv, steps = 6, 60
+    batched = BatchedBank(nv, e_form=e_form)  # type: ignore[arg-type]
+    banks = [ObserverBank(e_form=e_form) for _ in range(nv)]  # type: ignore[arg-type]
+    x0 = rng.normal(size=(nv, 4, 3))
+    batched.reset(x0)
+    for i in range(nv):
+        banks[i].reset(x0[i])
+    for k in range(steps):
+        inp = _random_inputs(rng, nv, np.pi if e_form == "exact" else 0.3)
+        mask = inp["mask"] if k % 2 else inp["mask"][:, 0, :]  # (n,4,3) and (n,3) forms
+        batched.step(inp["dt"], inp["euler"], inp["omega"], inp["f"], inp["y"], mask)
+        for i in range(nv):
+            banks[i].step(inp["dt"][i], inp["euler"][i], inp["omega"][i], inp["f"][i],
+                          inp["y"][i], mask[i])  # fmt: skip
+    loop = np.stack([b.x_hat_body_mps for b in banks])
+    scale = 1 + np.abs(loop).max()
+    assert np.abs(batched.x_hat_body_mps - loop).max() <= 1e-12 * scale
+    loop_ned = np.stack([b.x_hat_ned_mps() for b in banks])
+    assert np.abs(batched.x_hat_ned_mps() - loop_ned).max() <= 1e-12 * scale
+
+
+def test_batched_scalar_dt_and_no_mask() -> None:
+    rng = np.random.default_rng(8)
+    batched = BatchedBank(3)
+    bank = ObserverBank()
+    inp = _random_inputs(rng, 3)
+    inp["y"] = np.nan_to_num(inp["y"])
+    batched.step(0.01, inp["euler"], inp["omega"], inp["f"], inp["y"])
+    bank.step(0.01, inp["euler"][2], inp["omega"][2], inp["f"][2], inp["y"][2])
+    np.testing.assert_allclose(batched.x_hat_body_mps[2], bank.x_hat_body_mps, atol=1e-13)
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    arrays(np.float64, 3, elements=st.floats(-np.pi, np.pi)),
+    arrays(np.float64, 3, elements=st.floats(-3.0, 3.0)),
+    arrays(np.float64, 3, elements=st.floats(-10.0, 10.0)),
+    st.floats(1e-4, 0.5),
+)
+def test_bank_keeps_a_consistent_estimate_at_rest_in_steady_flight(
+    euler: np.ndarray, omega: np.ndarray, v_ned: np.ndarray, dt: float
+) -> None:
+    """Constant NED velocity, no rotation, at rest in an inertial sense (Γ = 0): an estimate
+    that equals the truth stays equal, any attitude, any step (exact, to rounding)."""
+    E = e_exact(euler)
+    f_body = -(E.T @ [0.0, 0.0, 9.81])  # specific force of unaccelerated flight
+    bank = ObserverBank()
+    bank.reset(E.T @ v_ned)
+    for _ in range(5):
+        bank.step(dt, euler, np.zeros(3), f_body, v_ned)
+    assert np.abs(bank.x_hat_ned_mps() - v_ned).max() <= 1e-12 * (1 + np.abs(v_ned).max())
+    # and with rotation the earth estimate moves only through the hold (≤ |ω||V|Δt per step)
+    bank.step(dt, euler, omega, f_body, v_ned)
+    assert np.isfinite(bank.x_hat_body_mps).all()
+
+
+def test_bad_input_is_rejected_and_state_kept() -> None:
+    bank = ObserverBank()
+    bank.reset([1.0, 2.0, 3.0])
+    before = bank.x_hat_body_mps
+    good = np.zeros(3)
+    cases = [
+        ((0.01, [np.nan, 0, 0], good, good, good), NonFiniteInputError, "euler_rad"),
+        ((0.01, good, [0, np.inf, 0], good, good), NonFiniteInputError, "omega_body_radps"),
+        ((0.01, good, good, [0, 0, -np.inf], good), NonFiniteInputError, "f_body_mps2"),
+        ((np.nan, good, good, good, good), NonFiniteInputError, "dt_s"),
+        ((-0.01, good, good, good, good), ValueError, "dt_s must be >= 0"),
+        ((0.01, np.zeros(4), good, good, good), ShapeError, r"euler_rad: expected shape \(3,\)"),
+        ((0.01, good, good, good, np.zeros((1, 3))), ShapeError, "v_ned_meas_mps"),
+    ]
+    for args, exc, msg in cases:
+        with pytest.raises(exc, match=msg):
+            bank.step(*args)
+        np.testing.assert_array_equal(bank.x_hat_body_mps, before)
+    with pytest.raises(ShapeError, match="meas_mask"):
+        bank.step(0.01, good, good, good, good, np.ones(3))  # not bool
+    with pytest.raises(ShapeError, match="meas_mask"):
+        bank.step(0.01, good, good, good, good, np.ones((2, 3), bool))
+    np.testing.assert_array_equal(bank.x_hat_body_mps, before)
+    # NaN / inf measurement axes are flagged (not used), the state stays finite
+    bank.step(0.01, good, good, [0, 0, -9.81], [np.nan, np.inf, 1.0])
+    assert np.isfinite(bank.x_hat_body_mps).all()
+    np.testing.assert_array_equal(bank.last_meas_mask[0], [False, False, True])
+    # an all-NaN measurement: every configuration dead-reckons (generic exact path)
+    bank.step(0.01, good, good, [0, 0, -9.81], [np.nan] * 3)
+    assert np.isfinite(bank.x_hat_body_mps).all()
+    assert not bank.last_meas_mask.any()
+
+
+def test_batched_bad_input_names_vehicles() -> None:
+    bb = BatchedBank(4)
+    z = np.zeros((4, 3))
+    eul = z.copy()
+    eul[2, 1] = np.nan
+    with pytest.raises(NonFiniteInputError, match=r"vehicle\(s\) \[2\]"):
+        bb.step(0.01, eul, z, z, z)
+    with pytest.raises(ShapeError, match="expected"):
+        bb.step(0.01, np.zeros((3, 3)), z, z, z)
+    with pytest.raises(ShapeError, match="dt_s"):
+        bb.step(np.zeros(3), z, z, z, z)
+    assert (bb.x_hat_body_mps == 0).all()
+
+
+def test_state_setters_and_handover() -> None:
+    bank = ObserverBank()
+    euler = np.array([0.3, -0.2, 1.0])
+    v_ned = np.array([4.0, -1.0, 0.5])
+    bank.set_state_ned("c1", v_ned, euler)
+    np.testing.assert_allclose(e_exact(euler) @ bank.x_hat_body_mps[1], v_ned, atol=1e-14)
+    bank.set_state_body("c2", [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(bank.x_hat_body_mps[2], [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="unknown configuration"):
+        bank.set_state_body("c9", [0, 0, 0])
+    with pytest.raises(NonFiniteInputError):
+        bank.set_state_body("c2", [np.nan, 0, 0])
+    bank.reset()
+    assert (bank.x_hat_body_mps == 0).all()
+    sa = ObserverBank(e_form="small_angle")
+    sa.set_state_ned("c3", v_ned, [0.1, 0.05, -0.1])
+    # small-angle E is not orthogonal: x̂ = E⁻¹ v_ned, not Eᵀ v_ned
+    np.testing.assert_allclose(
+        e_matrix([0.1, 0.05, -0.1], "small_angle") @ sa.x_hat_body_mps[3], v_ned, atol=1e-13
+    )
+    with pytest.raises(ValueError, match="gamma_per_config"):
+        ObserverBank({"c1": -1.0})
+    with pytest.raises(ValueError, match="unknown configuration"):
+        ObserverBank({"c7": 1.0})
