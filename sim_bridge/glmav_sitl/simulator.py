@@ -74,7 +74,7 @@ class Simulator:
         self.dt_us = round(dt * 1e6)
         if self.dt_us < 1:
             raise ValueError(f"dt_s = {dt} s is below 1 us")
-        self.dt_s = self.dt_us * 1e-6
+        self.dt_s = self.dt_us / 1e6
         ctl_us = round(1e6 / self.sitl.control_rate_hz)
         self.control_every = max(1, round(ctl_us / self.dt_us))  # steps per control tick
         self.model_options = model_options or ModelOptions()
@@ -113,7 +113,7 @@ class Simulator:
 
     @property
     def t_s(self) -> float:
-        return self.t_us * 1e-6
+        return self.t_us / 1e6
 
     def step(self) -> None:
         """Advance one physics step (RK4, inputs and wind held)."""

@@ -125,9 +125,13 @@ class Controller:
         a_cmd = [0.0, 0.0, 0.0]
         for i in range(3):
             e = v_cmd[i] - v_ned[i]
-            self._vi[i] = _clip(
-                self._vi[i] + e * self.dt, -k.max_accel_mps2 / k.vel_i, k.max_accel_mps2 / k.vel_i
-            )
+            # conditional integration (anti-windup): only near the commanded velocity
+            if abs(e) < 1.0:
+                self._vi[i] = _clip(
+                    self._vi[i] + e * self.dt,
+                    -k.max_accel_mps2 / k.vel_i,
+                    k.max_accel_mps2 / k.vel_i,
+                )
             a_cmd[i] = k.vel_p * e + k.vel_i * self._vi[i] + a_ff[i]
         ah = math.hypot(a_cmd[0], a_cmd[1])
         if ah > k.max_accel_mps2:
