@@ -306,7 +306,9 @@ def interpolate_truth(
     """
     t_e = np.asarray(t_est_s, dtype=np.float64)
     t_t = np.asarray(t_truth_s, dtype=np.float64)
-    v_t = np.asarray(v_truth, dtype=np.float64).reshape(len(t_t), -1)
+    v_t = np.asarray(v_truth, dtype=np.float64)
+    if v_t.ndim == 1:
+        v_t = v_t[:, None]
     out = np.full((len(t_e), v_t.shape[1]), np.nan)
     ok = np.zeros(len(t_e), dtype=bool)
     if len(t_t) == 0 or len(t_e) == 0:
@@ -740,8 +742,10 @@ class RerunSink:
                 if self._thread.is_alive():
                     log.warning("rerun: the viewer did not take the data within %.0f s", timeout_s)
             if self._thread is None or not self._thread.is_alive():
+                # a gone viewer: rerun's flush raises after the timeout, and its disconnect
+                # waits up to 5 s more for a last connection attempt, then drops the data
                 try:
-                    rec.flush(timeout_sec=timeout_s)
+                    rec.flush(timeout_sec=min(timeout_s, 2.0))
                 except Exception:
                     log.warning("rerun: flush at close failed", exc_info=True)
                 rec.disconnect()
@@ -1033,3 +1037,44 @@ def open_rerun_sink(
         web_url=web_url,
         **common,
     )
+
+
+# --------------------------------------------------------------------------- reading back
+
+
+def read_recording(
+    path: str | Path,
+) -> dict[str, dict[str, list[Any]]]:
+    """Read an ``.rrd`` back: entity path -> component -> values, with ``"vehicle_time"``.
+
+    For each entity, ``out[path]["vehicle_time"]`` holds the vehicle time of each temporal
+    row in seconds and ``out[path][component]`` the row values as Python lists
+    (e.g. ``"Scalars:scalars"`` -> ``[[1.0], ...]``), rows sorted by time; static rows are
+    under ``out[path]["static:" + component]``. For tests, notebooks and checks.
+    """
+    from rerun.chunk import RrdReader
+
+    out: dict[str, dict[str, list[Any]]] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        entity = out.setdefault(chunk.entity_path, {})
+        names = [n for n in batch.schema.names if not n.startswith("rerun.controls")]
+        if chunk.is_static:
+            for name in names:
+                entity.setdefault(f"static:{name}", []).extend(batch.column(name).to_pylist())
+            continue
+        if TIMELINE not in names:
+            continue
+        t_ns = batch.column(TIMELINE).cast("int64").to_pylist()
+        for name in names:
+            values = (
+                [t * 1e-9 for t in t_ns] if name == TIMELINE else batch.column(name).to_pylist()
+            )
+            entity.setdefault(name, []).extend(values)
+    for entity in out.values():
+        if TIMELINE in entity:
+            order = sorted(range(len(entity[TIMELINE])), key=entity[TIMELINE].__getitem__)
+            for name, values in entity.items():
+                if not name.startswith("static:") and len(values) == len(order):
+                    entity[name] = [values[i] for i in order]
+    return out

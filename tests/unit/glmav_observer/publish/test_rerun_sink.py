@@ -1,0 +1,271 @@
+"""Rerun sink: mode parsing, frame math, truth interpolation, and .rrd files read back.
+
+These tests write real recordings (``save:`` mode, a file in tmp_path) and read them
+back with rerun's own reader; no sockets.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from glmav_observer.publish.rerun_sink import (
+    TIMELINE,
+    RerunMode,
+    RerunModeError,
+    RerunSink,
+    body_to_ned_matrix,
+    build_blueprint,
+    interpolate_truth,
+    open_rerun_sink,
+    parse_rerun_mode,
+    quaternion_xyzw,
+    read_recording,
+)
+from glmav_observer.publish.sink import Sink
+from glmav_observer.records import (
+    FaultEvent,
+    HealthRecord,
+    MeasurementRecord,
+    TruthRecord,
+    VelocityRecord,
+)
+
+# Times go through int64 nanoseconds: rounding error <= 0.5 ns.
+T_TOL_S = 1e-9
+
+
+def _vel(config: str, t: float, v_body: tuple[float, float, float], seq: int = 0) -> VelocityRecord:
+    v_ned = (v_body[0] + 10.0, v_body[1] + 20.0, v_body[2] + 30.0)
+    return VelocityRecord(1, config, t, v_body, v_ned, None, "ok", seq)
+
+
+def _health(t: float, active: str, faults: tuple[FaultEvent, ...]) -> HealthRecord:
+    return HealthRecord(
+        sysid=1,
+        t_boot_s=t,
+        seq=0,
+        active_config=active,
+        residual_ned_mps=(0.1, -0.2, 0.3),
+        test_ratio=(2.5, 0.5, 0.25),
+        axis_state={"n": "faulty" if faults else "ok", "e": "ok", "d": "suspect"},
+        isolated_faults=faults,
+        input_rates_hz={},
+        counters={},
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "target"),
+    [
+        ("off", "off", None),
+        ("spawn", "spawn", None),
+        ("serve", "serve", None),
+        ("connect", "connect", "rerun+http://127.0.0.1:9876/proxy"),
+        ("connect:rerun+http://10.0.0.2:9000/proxy", "connect", "rerun+http://10.0.0.2:9000/proxy"),
+        ("save:out/x.rrd", "save", "out/x.rrd"),
+        ("SAVE:a.rrd", "save", "a.rrd"),
+    ],
+)
+def test_parse_modes(text: str, kind: str, target: str | None) -> None:
+    assert parse_rerun_mode(text) == RerunMode(kind, target)
+    assert RerunMode(kind, target).live == (kind in ("spawn", "connect", "serve"))
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("view", "expected off, spawn"),
+        ("save", "save needs a path"),
+        ("save:", "save needs a path"),
+        ("connect:http://127.0.0.1:9876", "rerun\\+http://HOST:PORT/proxy"),
+        ("connect:rerun+http://127.0.0.1:9876/", "path /proxy"),
+        ("serve:0.0.0.0", "takes no argument"),
+    ],
+)
+def test_bad_modes_raise(text: str, match: str) -> None:
+    with pytest.raises(RerunModeError, match=match):
+        parse_rerun_mode(text)
+    with pytest.raises(ValueError, match=match):  # RerunModeError is a ValueError
+        open_rerun_sink(text)
+
+
+def test_rotation_is_e_of_13_and_matches_quaternion() -> None:
+    # yaw 90 deg: the body's forward axis points east (NED y), right axis points south
+    e = body_to_ned_matrix((0.0, 0.0, math.pi / 2))
+    np.testing.assert_allclose(e @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(e @ [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], atol=1e-15)
+    # pitch up 90 deg: forward points up (NED -z)
+    e = body_to_ned_matrix((0.0, math.pi / 2, 0.0))
+    np.testing.assert_allclose(e @ [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], atol=1e-15)
+    rng = np.random.default_rng(7)
+    for euler in rng.uniform([-3, -1.5, -3], [3, 1.5, 3], size=(200, 3)):
+        m = body_to_ned_matrix(euler)
+        # a rotation: orthonormal with det +1 (round-off of a few ulp)
+        np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-14)
+        assert np.linalg.det(m) == pytest.approx(1.0, abs=1e-14)
+        x, y, z, w = quaternion_xyzw(euler)
+        assert x * x + y * y + z * z + w * w == pytest.approx(1.0, abs=1e-14)
+        q = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        np.testing.assert_allclose(q, m, atol=1e-14)  # same rotation, float round-off only
+
+
+def test_interpolate_truth() -> None:
+    t_truth = np.array([0.0, 0.02, 0.04, 0.30, 0.32])  # a 0.26 s dropout after 0.04
+    v_truth = np.column_stack([3.0 * t_truth + 1.0, -t_truth])
+    t_est = np.array([-0.01, 0.0, 0.005, 0.02, 0.039, 0.1, 0.31, 0.33])
+    ok, v = interpolate_truth(t_est, t_truth, v_truth, max_gap_s=0.1)
+    # before the first sample, inside the dropout and after the last: no truth
+    assert ok.tolist() == [False, True, True, True, True, False, True, False]
+    # a linear truth is reproduced exactly (float round-off only)
+    np.testing.assert_allclose(v[ok, 0], 3.0 * t_est[ok] + 1.0, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(v[ok, 1], -t_est[ok], rtol=0, atol=1e-15)
+    assert np.isnan(v[~ok]).all()
+    ok, _ = interpolate_truth(t_est, t_truth[:0], v_truth[:0], max_gap_s=0.1)
+    assert not ok.any()
+
+
+def test_blueprint_has_one_tab_per_vehicle() -> None:
+    import rerun.blueprint as rrb
+
+    one = build_blueprint([1])
+    two = build_blueprint([1, 2])
+    assert isinstance(one, rrb.Blueprint)
+    assert isinstance(one.root_container, rrb.Tabs)  # the vehicle's tabs directly
+    assert [c.name for c in one.root_container.contents] == [  # type: ignore[union-attr]
+        "overview",
+        "NED velocity",
+        "errors vs truth",
+        "health",
+    ]
+    assert [c.name for c in two.root_container.contents] == ["vehicle 1", "vehicle 2"]  # type: ignore[union-attr]
+
+
+def test_save_roundtrip(tmp_path: Path) -> None:
+    path = tmp_path / "out" / "rec.rrd"
+    sink = open_rerun_sink(f"save:{path}", recording_name="unit")
+    assert isinstance(sink, Sink)
+    assert sink.effective_mode == f"save:{path}"
+    # truth at 0 and 0.02 s, linear in time; estimates in between
+    sink.write(TruthRecord(1, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0, 0, 0), (0, 0, 0), 0))
+    for k, t in enumerate((0.005, 0.01, 0.015)):
+        for c in ("full", "c1", "c2", "c3", "active"):
+            sink.write(_vel(c, t, (1.0 + k, 2.0, 3.0), seq=k))
+    sink.write(_health(0.01, "full", ()))
+    sink.write(TruthRecord(1, 0.02, (0.2, 0.4, 0.6), (2.0, 4.0, 6.0), (0, 0, 0), (0, 0, 0), 1))
+    # measured north-east-down (0, 1, 0) at yaw 90 deg is (1, 0, 0) in body axes
+    sink.write(
+        MeasurementRecord(1, 0.02, (0.0, 1.0, 0.0), (5.0, 6.0, -7.0), 0, (0.0, 0.0, math.pi / 2))
+    )
+    fault = FaultEvent("n", "bias", t_detect_s=0.025, t_onset_s=0.02)
+    sink.write(_health(0.03, "c2", (fault,)))
+    sink.close()
+    assert sink.stats.records == 20
+    assert sink.stats.send_errors == 0
+
+    rec = read_recording(path)
+    full_u = rec["/vehicle/1/bank/full/v_body/u"]
+    np.testing.assert_allclose(full_u[TIMELINE], [0.005, 0.01, 0.015], rtol=0, atol=T_TOL_S)
+    assert full_u["Scalars:scalars"] == [[1.0], [2.0], [3.0]]  # float64 stored as is
+    assert full_u["static:SeriesLines:names"] == [["full"]]
+    assert rec["/vehicle/1/active/v_ned/d"]["Scalars:scalars"] == [[33.0]] * 3
+    # est - truth with truth linearly interpolated: at t the truth u is 10 t
+    for c in ("full", "c3", "active"):
+        err = rec[f"/vehicle/1/error/{c}/v_body/u"]
+        expected = [1.0 - 0.05, 2.0 - 0.1, 3.0 - 0.15]
+        np.testing.assert_allclose(
+            [v[0] for v in err["Scalars:scalars"]], expected, rtol=0, atol=1e-12
+        )
+    err_n = rec["/vehicle/1/error/c2/v_ned/n"]["Scalars:scalars"]
+    np.testing.assert_allclose([v[0] for v in err_n], [11 - 0.5, 12 - 1.0, 13 - 1.5], atol=1e-12)
+    truth_w = rec["/vehicle/1/truth/v_body/w"]
+    assert truth_w["Scalars:scalars"] == [[0.0], [0.6]]
+    meas = [
+        rec[f"/vehicle/1/ingest/measurement/v_body/{a}"]["Scalars:scalars"][0][0] for a in "uvw"
+    ]
+    np.testing.assert_allclose(meas, [1.0, 0.0, 0.0], atol=1e-15)  # E^T y, see above
+    assert rec["/vehicle/1/ingest/measurement/v_ned/e"]["Scalars:scalars"] == [[1.0]]
+    h = "/vehicle/1/health"
+    assert rec[f"{h}/residual/e"]["Scalars:scalars"] == [[-0.2], [-0.2]]
+    assert rec[f"{h}/test_ratio/n"]["Scalars:scalars"] == [[2.5], [2.5]]
+    assert rec[f"{h}/active_config"]["Scalars:scalars"] == [[0.0], [2.0]]  # full, then c2
+    assert rec[f"{h}/isolated_axis"]["Scalars:scalars"] == [[0.0], [1.0]]  # none, then n
+    assert rec[f"{h}/axis_state/n"]["Scalars:scalars"] == [[0.0], [3.0]]  # ok, then faulty
+    assert rec[f"{h}/events"]["TextLog:text"] == [
+        ["fault isolated on axis n (bias) at 0.025 s"],
+        ["active configuration full -> c2"],
+    ]
+    np.testing.assert_allclose(rec[f"{h}/events"][TIMELINE], [0.03, 0.03], atol=T_TOL_S)
+    pose = rec["/world/vehicle/1"]
+    np.testing.assert_allclose(pose["Transform3D:translation"][0][0], [5.0, 6.0, -7.0])
+    # yaw 90 deg about z: (0, 0, sin 45, cos 45); stored as float32 (6e-8 relative)
+    np.testing.assert_allclose(
+        pose["Transform3D:quaternion"][0][0], [0, 0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-7
+    )
+    arrow = rec["/world/vehicle/1/velocity/active"]["Arrows3D:vectors"]
+    np.testing.assert_allclose(arrow[0][0], [3.0, 2.0, 3.0], atol=1e-6)  # last active, float32
+    # the vehicle's clock only: no host-time timelines in the recording
+    reader = RrdReader(path)
+    timelines = {name for chunk in reader.stream() for name in chunk.timeline_names}
+    assert timelines == {TIMELINE}
+    assert len(reader.blueprints()) == 1  # the layout travels with the file
+
+
+def test_save_mode_batches_all_rows_and_drops_unbracketed_errors(tmp_path: Path) -> None:
+    path = tmp_path / "batched.rrd"
+    sink = open_rerun_sink(f"save:{path}", decimation=10, batch_rows=100)
+    n = 2000  # 8 s at 250 Hz: 20 flushes of 100 rows
+    for k in range(n):
+        t = k / 250
+        if k % 5 == 0 and t < 2.0:  # truth (50 Hz) only for the first 2 s
+            sink.write(TruthRecord(1, t, (0.0, 0.0, 0.0), (0, 0, 0), (0, 0, 0), None, k))
+        sink.write(_vel("full", t, (float(k), 0.0, 0.0), seq=k))
+    sink.close()
+    rec = read_recording(path)
+    # decimation applies to live modes only: a saved log has every record
+    assert [v[0] for v in rec["/vehicle/1/bank/full/v_body/u"]["Scalars:scalars"]] == list(
+        map(float, range(n))
+    )
+    assert sink.stats.batches_sent >= 20  # flushed as it went, not all at close
+    err_t = rec["/vehicle/1/error/full/v_body/u"][TIMELINE]
+    k_last_truth = 495  # the last k with k % 5 == 0 and k / 250 < 2
+    # errors exist exactly where two truth samples bracket the estimate: k = 0 .. 495
+    assert len(err_t) == k_last_truth + 1
+    assert max(err_t) == pytest.approx(k_last_truth / 250, abs=T_TOL_S)
+    # the rest waited for truth that never came, then were dropped and counted
+    assert sink.stats.error_rows_without_truth == n - (k_last_truth + 1)
+
+
+def test_off_mode_opens_nothing(tmp_path: Path) -> None:
+    sink = open_rerun_sink("off")
+    assert isinstance(sink, RerunSink)
+    sink.write(_vel("full", 0.0, (1.0, 2.0, 3.0)))
+    sink.close()
+    assert sink.stats.records == 0
+    assert sink.effective_mode == "off"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_spawn_without_display_falls_back_to_save(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = tmp_path / "demo.rrd"
+    sink = open_rerun_sink("spawn", fallback_save_path=str(path), environ={})
+    assert sink.requested_mode == RerunMode("spawn")
+    assert sink.effective_mode == f"save:{path}"
+    assert f"Open it with: rerun {path}" in caplog.text
+    sink.write(_vel("c1", 1.5, (4.0, 5.0, 6.0)))
+    sink.close()
+    assert read_recording(path)["/vehicle/1/bank/c1/v_body/w"]["Scalars:scalars"] == [[6.0]]
+    with pytest.raises(RerunModeError, match="no DISPLAY or WAYLAND_DISPLAY"):
+        open_rerun_sink("spawn", fallback_save_path=None, environ={})
