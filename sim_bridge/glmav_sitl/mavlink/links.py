@@ -230,6 +230,10 @@ def open_link(conn: str) -> Link:
     kind, sep, rest = conn.partition(":")
     if not sep:
         raise LinkError(f"{conn!r}: expected KIND:HOST:PORT (udpout, udpin, udp, tcp, tcpin)")
+    if kind not in ("udpout", "udpin", "udp", "tcp", "tcpin"):
+        raise LinkError(
+            f"{conn!r}: unsupported link kind {kind!r} (udpout, udpin, udp, tcp, tcpin)"
+        )
     host, port = _host_port(conn, rest)
     if kind == "udpout":
         return UdpLink(conn, host, port, listen=False)
