@@ -1,0 +1,577 @@
+"""Republishing the service's records on Zenoh (design.md, "Zenoh"; docs/zenoh.md).
+
+One Zenoh session per service, opened by :func:`open_zenoh_sink` and owned (closed) by
+the returned :class:`ZenohSink`. Keys, with ``<prefix>`` (default ``glmav``):
+
+- ``<prefix>/<sysid>/velocity/<config>`` (full, c1, c2, c3) and ``.../velocity/active``;
+- ``<prefix>/<sysid>/health``; ``<prefix>/<sysid>/measurement``; ``<prefix>/<sysid>/truth``;
+- queryable ``<prefix>/<sysid>/state`` (a query on ``<prefix>/*/state`` gets one reply
+  per vehicle) and queryable ``<prefix>/@config/<service-id>``;
+- liveliness ``<prefix>/@alive/<service-id>`` while the sink is open, and
+  ``<prefix>/@alive/<service-id>/<sysid>`` while that vehicle's records keep coming.
+
+Payloads are ``record.to_dict()`` as compact JSON (encoding ``application/json``; the
+``schema`` field names the layout, see :mod:`glmav_observer.publish.schema`).
+
+``write`` never waits on the network: publishers use congestion control DROP, so a slow
+or absent subscriber makes Zenoh drop samples instead of blocking the estimator; without
+any connected node a put is a local no-op. A lost router is reconnected by Zenoh itself
+(the ``connect`` endpoints are retried), and publishing resumes without a restart.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import re
+import socket
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from glmav_observer.records import (
+    CONFIGS,
+    HealthRecord,
+    MeasurementRecord,
+    Record,
+    TruthRecord,
+    VelocityRecord,
+)
+
+if TYPE_CHECKING:
+    import zenoh
+
+log = logging.getLogger(__name__)
+
+#: The key kinds a decimation can be set for, with their defaults (publish every record).
+KINDS: tuple[str, ...] = ("velocity", "active", "health", "measurement", "truth")
+DEFAULT_DECIMATION: dict[str, int] = dict.fromkeys(KINDS, 1)
+
+STATE_SCHEMA = "glmav.state/1"
+CONFIG_SCHEMA = "glmav.config/1"
+
+#: The embedded default (mirrored by configs/zenoh/peer-local.json5): a peer listening on
+#: an ephemeral loopback port, trying a local router on tcp/127.0.0.1:7447 (retried in
+#: the background, not an error when absent), no multicast scouting: no traffic leaves
+#: the host.
+EMBEDDED_DEFAULT_JSON5 = """{
+  mode: "peer",
+  listen: { endpoints: ["tcp/127.0.0.1:0"] },
+  connect: { endpoints: ["tcp/127.0.0.1:7447"] },
+  scouting: { multicast: { enabled: false } },
+}"""
+EMBEDDED_DEFAULT_NAME = "<embedded peer-local default>"
+
+_WILDCARD_CHARS = frozenset("*$?#")
+_ZERROR_LOCATION = re.compile(r"\s+at /\S+:\d+\.?")
+
+
+class ZenohConfigError(ValueError):
+    """A Zenoh configuration that cannot be used; the message names the file and problem."""
+
+
+# ---------------------------------------------------------------------------------------
+# Key expressions
+# ---------------------------------------------------------------------------------------
+
+
+def check_prefix(prefix: str) -> str:
+    """``prefix`` if it is a usable key prefix (no wildcards, no empty or ``@`` chunks)."""
+    chunks = prefix.split("/")
+    if not prefix or any(not c for c in chunks):
+        raise ZenohConfigError(f"zenoh prefix {prefix!r}: empty chunk (use e.g. 'glmav')")
+    if any(ch in _WILDCARD_CHARS for ch in prefix):
+        raise ZenohConfigError(f"zenoh prefix {prefix!r}: wildcards (* $ ? #) are not allowed")
+    if any(c.startswith("@") for c in chunks):
+        raise ZenohConfigError(f"zenoh prefix {prefix!r}: chunks starting with '@' are reserved")
+    return prefix
+
+
+def check_service_id(service_id: str) -> str:
+    """``service_id`` if it is one plain key chunk."""
+    if (
+        not service_id
+        or "/" in service_id
+        or service_id.startswith("@")
+        or any(ch in _WILDCARD_CHARS for ch in service_id)
+    ):
+        raise ZenohConfigError(
+            f"zenoh service id {service_id!r}: must be one non-empty key chunk "
+            "without '/', wildcards (* $ ? #) or a leading '@'"
+        )
+    return service_id
+
+
+def default_service_id() -> str:
+    """``<host>-<pid>``, made a valid key chunk."""
+    host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"
+
+
+def velocity_key(prefix: str, sysid: int | str, config: str) -> str:
+    return f"{prefix}/{sysid}/velocity/{config}"
+
+
+def health_key(prefix: str, sysid: int | str) -> str:
+    return f"{prefix}/{sysid}/health"
+
+
+def measurement_key(prefix: str, sysid: int | str) -> str:
+    return f"{prefix}/{sysid}/measurement"
+
+
+def truth_key(prefix: str, sysid: int | str) -> str:
+    return f"{prefix}/{sysid}/truth"
+
+
+def state_key(prefix: str, sysid: int | str = "*") -> str:
+    return f"{prefix}/{sysid}/state"
+
+
+def config_key(prefix: str, service_id: str) -> str:
+    return f"{prefix}/@config/{service_id}"
+
+
+def alive_key(prefix: str, service_id: str = "*", sysid: int | str | None = None) -> str:
+    base = f"{prefix}/@alive/{service_id}"
+    return base if sysid is None else f"{base}/{sysid}"
+
+
+def route(prefix: str, record: Record) -> tuple[str, str, str]:
+    """``(kind, key, slot)`` of a record: its decimation kind, key, and slot in the state."""
+    if isinstance(record, VelocityRecord):
+        kind = "active" if record.config == "active" else "velocity"
+        return kind, velocity_key(prefix, record.sysid, record.config), record.config
+    if isinstance(record, HealthRecord):
+        return "health", health_key(prefix, record.sysid), "health"
+    if isinstance(record, MeasurementRecord):
+        return "measurement", measurement_key(prefix, record.sysid), "measurement"
+    if isinstance(record, TruthRecord):
+        return "truth", truth_key(prefix, record.sysid), "truth"
+    raise TypeError(f"not a record: {type(record).__name__}")
+
+
+# ---------------------------------------------------------------------------------------
+# Payloads
+# ---------------------------------------------------------------------------------------
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (JSON has no NaN)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def encode_json(obj: Mapping[str, Any]) -> bytes:
+    """Compact JSON bytes; NaN/inf anywhere become null."""
+    try:
+        return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+    except ValueError:
+        return json.dumps(_finite(obj), separators=(",", ":"), default=str).encode()
+
+
+def encode_payload(record: Record) -> bytes:
+    """The payload of one record: ``record.to_dict()`` as compact JSON."""
+    return encode_json(record.to_dict())
+
+
+# ---------------------------------------------------------------------------------------
+# Configuration
+# ---------------------------------------------------------------------------------------
+
+
+def clean_zenoh_error(exc: BaseException) -> str:
+    """A ZError's message without the Rust source location."""
+    return _ZERROR_LOCATION.sub("", str(exc)).strip()
+
+
+def _get(config: zenoh.Config, key: str) -> Any:
+    return json.loads(config.get_json(key))
+
+
+def load_zenoh_config(path: str | os.PathLike[str] | None) -> tuple[zenoh.Config, str]:
+    """Parse and check a Zenoh JSON5 file (None: the embedded default).
+
+    Returns ``(config, name)``; raises :class:`ZenohConfigError` naming the file.
+    """
+    import zenoh
+
+    if path is None:
+        name, text = EMBEDDED_DEFAULT_NAME, EMBEDDED_DEFAULT_JSON5
+    else:
+        name = os.fspath(path)
+        try:
+            text = Path(name).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ZenohConfigError(f"{name}: cannot read: {exc.strerror or exc}") from exc
+        except UnicodeDecodeError as exc:
+            raise ZenohConfigError(f"{name}: not UTF-8 text: {exc}") from exc
+    try:
+        config = zenoh.Config.from_json5(text)
+    except zenoh.ZError as exc:
+        raise ZenohConfigError(f"{name}: {clean_zenoh_error(exc)}") from exc
+    mode = _get(config, "mode") or "peer"
+    connect = _get(config, "connect/endpoints")
+    multicast = _get(config, "scouting/multicast/enabled")
+    has_connect = bool(connect) if not isinstance(connect, dict) else any(connect.values())
+    if mode == "client" and not has_connect and multicast is False:
+        raise ZenohConfigError(
+            f"{name}: mode 'client' needs connect.endpoints (e.g. [\"tcp/127.0.0.1:7447\"]) "
+            "when multicast scouting is off"
+        )
+    return config, name
+
+
+def open_session(config: zenoh.Config, name: str) -> zenoh.Session:
+    """Open a session; a failure raises :class:`ZenohConfigError` naming the config."""
+    import zenoh
+
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        mode = _get(config, "mode") or "peer"
+        raise ZenohConfigError(
+            f"{name}: cannot open the Zenoh session (mode {mode}, "
+            f"connect {_get(config, 'connect/endpoints')}, "
+            f"listen {_get(config, 'listen/endpoints')}): {clean_zenoh_error(exc)}"
+        ) from exc
+
+
+def check_decimation(decimation: Mapping[str, int] | None) -> dict[str, int]:
+    """The full per-kind decimation (every Nth record; 0 = never publish that kind)."""
+    result = dict(DEFAULT_DECIMATION)
+    for kind, every in (decimation or {}).items():
+        if kind not in result:
+            raise ZenohConfigError(
+                f"zenoh decimation: unknown key kind {kind!r} (known: {', '.join(KINDS)})"
+            )
+        if isinstance(every, bool) or not isinstance(every, int) or every < 0:
+            raise ZenohConfigError(
+                f"zenoh decimation.{kind}: {every!r} is not an integer >= 0 "
+                "(1 = every record, N = every Nth, 0 = off)"
+            )
+        result[kind] = every
+    return result
+
+
+# ---------------------------------------------------------------------------------------
+# The sink
+# ---------------------------------------------------------------------------------------
+
+
+class ZenohSink:
+    """Publishes records, answers state and config queries, holds liveliness tokens.
+
+    Construct with :func:`open_zenoh_sink`. ``write`` is called from the estimation
+    thread; queries are answered from Zenoh's threads (the latest records are shared
+    under a lock held for a few dict operations).
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        *,
+        config_name: str | None,
+        prefix: str = "glmav",
+        decimation: Mapping[str, int] | None = None,
+        service_id: str,
+        effective_config: Mapping[str, Any],
+        vehicle_timeout_s: float = 5.0,
+    ) -> None:
+        import zenoh
+
+        self._zenoh = zenoh
+        self._session = session
+        self.prefix = check_prefix(prefix)
+        self.service_id = check_service_id(service_id)
+        self.decimation = check_decimation(decimation)
+        self.config_name = config_name
+        self.vehicle_timeout_s = vehicle_timeout_s
+        self._effective_config = dict(effective_config)
+        self._lock = threading.Lock()
+        self._closed = False
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._write_count: dict[str, int] = {}
+        self._latest: dict[int, dict[str, Record]] = {}
+        self._last_seen: dict[int, float] = {}
+        self._vehicle_tokens: dict[int, zenoh.LivelinessToken] = {}
+        self.published: dict[str, int] = dict.fromkeys(KINDS, 0)
+        self.decimated: dict[str, int] = dict.fromkeys(KINDS, 0)
+        self.errors = 0
+        self.after_close = 0
+        self.queries_answered = 0
+        self._config_payload = encode_json(self.config_payload())
+        self._queryables = [
+            session.declare_queryable(state_key(self.prefix), self._on_state_query),
+            session.declare_queryable(
+                config_key(self.prefix, self.service_id), self._on_config_query
+            ),
+        ]
+        self._service_token = session.liveliness().declare_token(
+            alive_key(self.prefix, self.service_id)
+        )
+        self._stop = threading.Event()
+        self._watchdog = threading.Thread(
+            target=self._watch_vehicles, name="zenoh-sink-liveliness", daemon=True
+        )
+        self._watchdog.start()
+        log.info(
+            "zenoh sink open: prefix %s, service %s, config %s, zid %s",
+            self.prefix,
+            self.service_id,
+            config_name or EMBEDDED_DEFAULT_NAME,
+            session.zid(),
+        )
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The sink's session (for in-process subscribers; do not close it yourself)."""
+        return self._session
+
+    # -- publishing -----------------------------------------------------------------------
+
+    def write(self, record: Record) -> None:
+        if self._closed:
+            self.after_close += 1
+            return
+        kind, key, slot = route(self.prefix, record)
+        sysid = record.sysid
+        now = time.monotonic()
+        with self._lock:
+            slots = self._latest.get(sysid)
+            if slots is None:
+                slots = self._latest[sysid] = {}
+            slots[slot] = record
+            self._last_seen[sysid] = now
+            if sysid not in self._vehicle_tokens:
+                self._declare_vehicle_token(sysid)
+        n = self._write_count.get(key, 0)
+        self._write_count[key] = n + 1
+        every = self.decimation[kind]
+        if every == 0 or n % every:
+            self.decimated[kind] += 1
+            return
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self._declare_publisher(key, kind)
+            if publisher is None:
+                return
+        try:
+            publisher.put(encode_payload(record))
+        except self._zenoh.ZError as exc:
+            self.errors += 1
+            if self.errors == 1 or self.errors % 1000 == 0:
+                log.warning("zenoh put on %s failed (%d so far): %s", key, self.errors, exc)
+            return
+        self.published[kind] += 1
+
+    def _declare_publisher(self, key: str, kind: str) -> zenoh.Publisher | None:
+        zenoh = self._zenoh
+        try:
+            publisher = self._session.declare_publisher(
+                key,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                # estimates are superseded 4 ms later: drop rather than block the estimator
+                congestion_control=zenoh.CongestionControl.DROP,
+                priority=zenoh.Priority.DATA_HIGH if kind == "health" else zenoh.Priority.DATA,
+            )
+        except zenoh.ZError as exc:
+            self.errors += 1
+            log.warning("zenoh: cannot declare a publisher on %s: %s", key, exc)
+            return None
+        self._publishers[key] = publisher
+        return publisher
+
+    # -- liveliness -----------------------------------------------------------------------
+
+    def _declare_vehicle_token(self, sysid: int) -> None:
+        """Declare ``<prefix>/@alive/<service-id>/<sysid>`` (caller holds the lock)."""
+        try:
+            token = self._session.liveliness().declare_token(
+                alive_key(self.prefix, self.service_id, sysid)
+            )
+        except self._zenoh.ZError as exc:
+            self.errors += 1
+            log.warning("zenoh: cannot declare the liveliness token of vehicle %d: %s", sysid, exc)
+            return
+        self._vehicle_tokens[sysid] = token
+        log.info(
+            "zenoh: vehicle %d alive (%s)", sysid, alive_key(self.prefix, self.service_id, sysid)
+        )
+
+    def _watch_vehicles(self) -> None:
+        """Withdraw a vehicle's token when its records stop for ``vehicle_timeout_s``."""
+        period_s = max(0.05, min(1.0, self.vehicle_timeout_s / 4.0))
+        while not self._stop.wait(period_s):
+            now = time.monotonic()
+            with self._lock:
+                stale = [
+                    sysid
+                    for sysid in self._vehicle_tokens
+                    if now - self._last_seen.get(sysid, now) > self.vehicle_timeout_s
+                ]
+                for sysid in stale:
+                    token = self._vehicle_tokens.pop(sysid)
+                    self._undeclare(token)
+                    log.info("zenoh: vehicle %d silent for %.1f s", sysid, self.vehicle_timeout_s)
+
+    def alive_vehicles(self) -> list[int]:
+        """The sysids whose liveliness token is currently declared."""
+        with self._lock:
+            return sorted(self._vehicle_tokens)
+
+    # -- queryables -----------------------------------------------------------------------
+
+    def state_payload(self, sysid: int) -> dict[str, Any] | None:
+        """The latest record of each kind for one vehicle (None if never seen)."""
+        with self._lock:
+            slots = dict(self._latest.get(sysid, {}))
+        if not slots:
+            return None
+
+        def latest(slot: str) -> dict[str, Any] | None:
+            record = slots.get(slot)
+            return None if record is None else record.to_dict()
+
+        return {
+            "schema": STATE_SCHEMA,
+            "service_id": self.service_id,
+            "sysid": sysid,
+            "velocity": {
+                name: slots[name].to_dict() for name in (*CONFIGS, "active") if name in slots
+            },
+            "health": latest("health"),
+            "measurement": latest("measurement"),
+            "truth": latest("truth"),
+        }
+
+    def config_payload(self) -> dict[str, Any]:
+        """What the ``@config`` queryable answers: the service's effective configuration."""
+        return {
+            "schema": CONFIG_SCHEMA,
+            "service_id": self.service_id,
+            "prefix": self.prefix,
+            "zenoh_config": self.config_name,
+            "decimation": dict(self.decimation),
+            "config": json.loads(encode_json(self._effective_config)),
+        }
+
+    def _on_state_query(self, query: zenoh.Query) -> None:
+        zenoh = self._zenoh
+        try:
+            with self._lock:
+                sysids = sorted(self._latest)
+            for sysid in sysids:
+                key = state_key(self.prefix, sysid)
+                if not query.key_expr.intersects(key):
+                    continue
+                payload = self.state_payload(sysid)
+                if payload is not None:
+                    query.reply(key, encode_json(payload), encoding=zenoh.Encoding.APPLICATION_JSON)
+                    self.queries_answered += 1
+        except Exception:  # a callback must never raise into Zenoh's thread
+            self.errors += 1
+            log.exception("zenoh: answering %s failed", query.selector)
+
+    def _on_config_query(self, query: zenoh.Query) -> None:
+        zenoh = self._zenoh
+        try:
+            query.reply(
+                config_key(self.prefix, self.service_id),
+                self._config_payload,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+            )
+            self.queries_answered += 1
+        except Exception:  # a callback must never raise into Zenoh's thread
+            self.errors += 1
+            log.exception("zenoh: answering %s failed", query.selector)
+
+    # -- lifecycle ------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "published": dict(self.published),
+            "decimated": dict(self.decimated),
+            "errors": self.errors,
+            "after_close": self.after_close,
+            "queries_answered": self.queries_answered,
+            "publishers": len(self._publishers),
+            "vehicles_alive": self.alive_vehicles(),
+        }
+
+    def _undeclare(self, entity: Any) -> None:
+        try:
+            entity.undeclare()
+        except self._zenoh.ZError as exc:
+            log.debug("zenoh: undeclare failed: %s", exc)
+
+    def close(self) -> None:
+        """Withdraw the tokens, undeclare everything and close the session (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._watchdog.join(timeout=5.0)
+        with self._lock:
+            tokens = list(self._vehicle_tokens.values())
+            self._vehicle_tokens.clear()
+        for entity in [*tokens, self._service_token, *self._queryables]:
+            self._undeclare(entity)
+        for publisher in self._publishers.values():
+            self._undeclare(publisher)
+        self._publishers.clear()
+        try:
+            self._session.close()  # type: ignore[no-untyped-call]
+        except self._zenoh.ZError as exc:
+            log.warning("zenoh: closing the session failed: %s", exc)
+        log.info("zenoh sink closed: %s", self.stats())
+
+    def __enter__(self) -> ZenohSink:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+def open_zenoh_sink(
+    zenoh_config_path: str | os.PathLike[str] | None,
+    *,
+    prefix: str = "glmav",
+    decimation: Mapping[str, int] | None = None,
+    service_id: str,
+    effective_config: Mapping[str, Any],
+    vehicle_timeout_s: float = 5.0,
+) -> ZenohSink:
+    """Open the service's Zenoh session and sink (docs/zenoh.md).
+
+    ``zenoh_config_path``: a Zenoh JSON5 file, or None for the embedded loopback peer.
+    ``decimation``: per key kind (``KINDS``), publish every Nth record (0 = off).
+    Raises :class:`ZenohConfigError` (a ``ValueError``) with a self-contained message.
+    """
+    check_prefix(prefix)
+    check_service_id(service_id)
+    check_decimation(decimation)
+    config, name = load_zenoh_config(zenoh_config_path)
+    session = open_session(config, name)
+    try:
+        return ZenohSink(
+            session,
+            config_name=None if zenoh_config_path is None else name,
+            prefix=prefix,
+            decimation=decimation,
+            service_id=service_id,
+            effective_config=effective_config,
+            vehicle_timeout_s=vehicle_timeout_s,
+        )
+    except BaseException:
+        session.close()  # type: ignore[no-untyped-call]
+        raise

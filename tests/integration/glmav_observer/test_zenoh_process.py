@@ -1,0 +1,215 @@
+"""Processes around the Zenoh sink: a publisher stopped by SIGINT, a router killed and
+restarted, the ``echo`` and ``router`` commands. Loopback only, real sessions."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from zenoh_helpers import (
+    RouterProcess,
+    client_config,
+    client_session,
+    running_router,
+    velocity,
+    wait_until,
+)
+
+from glmav_observer.publish.schema import validate
+from glmav_observer.publish.zenoh_sink import open_zenoh_sink
+
+pytestmark = pytest.mark.timeout(90)
+
+HELPERS = Path(__file__).resolve().parent / "zenoh_helpers.py"
+CLI = [sys.executable, "-m", "glmav_observer.cli"]
+
+
+def _alive_events(session: Any) -> tuple[list[tuple[str, str]], Any]:
+    events: list[tuple[str, str]] = []
+    listener = session.liveliness().declare_subscriber(
+        "glmav/@alive/**",
+        lambda s: events.append((str(s.key_expr), "+" if s.kind == zenoh.SampleKind.PUT else "-")),
+        history=True,
+    )
+    return events, listener
+
+
+def test_publisher_process_token_appears_and_goes_on_sigint(
+    tmp_path: Path, free_tcp_port: Callable[[], int]
+) -> None:
+    with running_router(free_tcp_port()) as router:
+        viewer = client_session(router.port)
+        events, listener = _alive_events(viewer)
+        config = client_config(tmp_path / "svc.json5", router.port)
+        proc = subprocess.Popen(
+            [sys.executable, str(HELPERS), str(config), "standin"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert wait_until(lambda: ("glmav/@alive/standin/1", "+") in events, 20)
+            assert ("glmav/@alive/standin", "+") in events
+            replies = list(viewer.get("glmav/1/state", timeout=5.0))
+            assert len(replies) == 1 and replies[0].ok is not None
+            state = json.loads(replies[0].ok.payload.to_bytes())
+            assert validate(state) == [] and state["service_id"] == "standin"
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        assert proc.returncode == 0, err
+        assert "closed" in out and int(out.split("closed ")[1]) > 0
+        # withdrawn by the clean close, not by the 10 s lease: within a couple of seconds
+        assert wait_until(lambda: ("glmav/@alive/standin", "-") in events, 3)
+        assert ("glmav/@alive/standin/1", "-") in events
+        listener.undeclare()
+        viewer.close()
+
+
+def test_router_killed_and_restarted_publishing_resumes(
+    tmp_path: Path, free_tcp_port: Callable[[], int]
+) -> None:
+    router = RouterProcess(free_tcp_port())
+    router.start()
+    sink = open_zenoh_sink(
+        str(client_config(tmp_path / "svc.json5", router.port)),
+        service_id="restart-svc",
+        effective_config={},
+    )
+    viewer = client_session(router.port)
+    received: list[int] = []
+    viewer.declare_subscriber(
+        "glmav/1/velocity/active",
+        lambda s: received.append(json.loads(s.payload.to_bytes())["seq"]),
+    )
+    written = [0]
+    failures: list[BaseException] = []
+    stop = threading.Event()
+
+    def estimator() -> None:  # the daemon's loop, at ~500 Hz
+        try:
+            while not stop.is_set():
+                sink.write(velocity(1, "active", written[0]))
+                written[0] += 1
+                time.sleep(0.002)
+        except BaseException as exc:  # pragma: no cover - reported by the assert below
+            failures.append(exc)
+
+    thread = threading.Thread(target=estimator, daemon=True)
+    thread.start()
+    try:
+        assert wait_until(lambda: len(received) > 20, 10)
+        router.kill()
+        killed_at = written[0]
+        # the estimator goes on while the router is gone (writes don't block or raise)
+        assert wait_until(lambda: written[0] > killed_at + 100, 5)
+        router.start()  # same port
+        restarted_at = written[0]
+        # the client sessions reconnect by themselves; samples written after the restart
+        # arrive (Zenoh's connect retry starts at 1 s and backs off: allow 20 s)
+        assert wait_until(lambda: bool(received) and received[-1] > restarted_at, 20)
+        replies = list(viewer.get("glmav/1/state", timeout=5.0))
+        assert len(replies) == 1 and replies[0].ok is not None
+    finally:
+        stop.set()
+        thread.join(5)
+        sink.close()
+        viewer.close()
+        router.stop()
+    assert failures == []
+    assert sink.errors == 0
+    assert sink.published["active"] == written[0]
+
+
+def test_echo_prints_json_lines_equal_to_the_records(
+    tmp_path: Path, free_tcp_port: Callable[[], int]
+) -> None:
+    with running_router(free_tcp_port()) as router:
+        sink = open_zenoh_sink(
+            str(client_config(tmp_path / "svc.json5", router.port)),
+            service_id="echo-svc",
+            effective_config={"x": 1},
+        )
+        endpoint = f"tcp/127.0.0.1:{router.port}"
+        echo = subprocess.Popen(
+            [
+                *CLI,
+                *("echo", "glmav/3/velocity/c2", "--connect", endpoint, "--format", "jsonl"),
+                *("--count", "20", "--validate", "--duration", "30"),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            step = 0
+            # publish until echo has its 20 samples and exits (it subscribes after start-up)
+            while echo.poll() is None and step < 20000:
+                sink.write(velocity(3, "c2", step))
+                step += 1
+                time.sleep(0.005)
+            out, err = echo.communicate(timeout=20)
+            query = subprocess.run(
+                [
+                    *CLI,
+                    *("echo", "glmav/*/state", "--query", "--connect", endpoint),
+                    *("--validate", "--format", "jsonl"),
+                ],
+                check=False,
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
+        finally:
+            if echo.poll() is None:
+                echo.kill()
+                echo.wait()
+            sink.close()
+    assert echo.returncode == 0, err
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert len(lines) == 20
+    for line in lines:
+        assert line["key"] == "glmav/3/velocity/c2"
+        assert line["encoding"] == "application/json"
+        assert line["value"] == velocity(3, "c2", line["value"]["seq"]).to_dict()
+    seqs = [line["value"]["seq"] for line in lines]
+    assert seqs == list(range(seqs[0], seqs[0] + 20))  # consecutive: none lost, in order
+    assert query.returncode == 0, query.stderr
+    (state,) = [json.loads(line) for line in query.stdout.splitlines()]
+    assert state["key"] == "glmav/3/state"
+    assert state["value"]["velocity"]["c2"] == velocity(3, "c2", step - 1).to_dict()
+
+
+def test_bad_zenoh_configs_exit_non_zero_naming_the_file(tmp_path: Path) -> None:
+    bad_syntax = tmp_path / "broken.json5"
+    bad_syntax.write_text('{ mode: "client", connect: { endpoints: [', encoding="utf-8")
+    unknown_field = tmp_path / "typo.json5"
+    unknown_field.write_text('{ mode: "router", listne: {} }', encoding="utf-8")
+    peer = tmp_path / "peer.json5"
+    peer.write_text('{ mode: "peer", scouting: { multicast: { enabled: false } } }', "utf-8")
+    cases = [
+        (["router", "--config", str(bad_syntax)], f"{bad_syntax}: "),
+        (["router", "--config", str(unknown_field)], f"{unknown_field}: unknown field `listne`"),
+        (["router", "--config", str(peer)], f"{peer}: mode is 'peer'"),
+        (["echo", "--zenoh", str(tmp_path / "missing.json5")], "missing.json5: cannot read"),
+        (["echo", "glmav/**/", "--duration", "0.1"], "bad key expression"),
+    ]
+    for argv, message in cases:
+        result = subprocess.run(
+            [*CLI, *argv], check=False, capture_output=True, text=True, timeout=30
+        )
+        assert result.returncode == 2, (argv, result.stderr)
+        assert message in result.stderr, (argv, result.stderr)
+        assert "Traceback" not in result.stderr

@@ -1,0 +1,223 @@
+"""The Zenoh sink over real sessions on loopback: a router subprocess, the sink and the
+subscribers in client mode (multicast scouting off, explicit tcp/127.0.0.1 endpoints)."""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import pytest
+import zenoh
+from zenoh_helpers import (
+    RouterProcess,
+    client_config,
+    client_session,
+    health,
+    vehicle_stream,
+    velocity,
+    wait_until,
+)
+
+from glmav_observer.publish.schema import SCHEMAS, validate
+from glmav_observer.publish.zenoh_sink import (
+    ZenohConfigError,
+    ZenohSink,
+    open_zenoh_sink,
+    route,
+)
+from glmav_observer.records import CONFIGS, Record
+
+pytestmark = pytest.mark.timeout(60)
+
+DECIMATION = {"velocity": 2, "active": 1, "health": 1, "measurement": 3, "truth": 1}
+EFFECTIVE = {"link": ["udpin:127.0.0.1:14550"], "zenoh": {"prefix": "glmav"}, "gamma": [90, 70]}
+WARMUP_SYSID = 99
+
+
+@pytest.fixture
+def router(free_tcp_port: Callable[[], int]) -> Iterator[RouterProcess]:
+    router = RouterProcess(free_tcp_port())
+    router.start()
+    yield router
+    router.stop()
+
+
+@pytest.fixture
+def sink(router: RouterProcess, tmp_path: Path) -> Iterator[ZenohSink]:
+    config = client_config(tmp_path / "client.json5", router.port)
+    sink = open_zenoh_sink(
+        str(config),
+        decimation=DECIMATION,
+        service_id="test-svc",
+        effective_config=EFFECTIVE,
+        vehicle_timeout_s=0.3,
+    )
+    yield sink
+    sink.close()
+
+
+@pytest.fixture
+def viewer(router: RouterProcess) -> Iterator[Any]:
+    session = client_session(router.port)
+    yield session
+    session.close()
+
+
+class Collector:
+    """A subscriber's samples: (key, encoding, decoded JSON), warm-up samples left out."""
+
+    def __init__(self, session: Any, keyexpr: str) -> None:
+        self.samples: list[tuple[str, str, Any]] = []
+        self.warm = False
+        self.sub = session.declare_subscriber(keyexpr, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        value = json.loads(sample.payload.to_bytes())
+        if value.get("sysid") == WARMUP_SYSID:
+            self.warm = True
+            return
+        self.samples.append((str(sample.key_expr), str(sample.encoding), value))
+
+    def wait_routed(self, sink: ZenohSink) -> None:
+        """Publish warm-up records until one arrives: the route sink -> router -> us is up."""
+        assert wait_until(lambda: (sink.write(velocity(WARMUP_SYSID, "full", 0)), self.warm)[1], 10)
+
+
+def expected_published(records: list[Record], prefix: str = "glmav") -> list[tuple[str, Record]]:
+    """What the decimation lets through: per key, records number 0, N, 2N, ..."""
+    count: dict[str, int] = defaultdict(int)
+    out = []
+    for record in records:
+        kind, key, _ = route(prefix, record)
+        if count[key] % DECIMATION[kind] == 0:
+            out.append((key, record))
+        count[key] += 1
+    return out
+
+
+def test_every_key_arrives_valid_and_equal_to_the_records(sink: ZenohSink, viewer: Any) -> None:
+    collector = Collector(viewer, "glmav/**")
+    collector.wait_routed(sink)
+    published0, decimated0 = sink.published["velocity"], sink.decimated["velocity"]
+    records = [
+        r for pair in zip(vehicle_stream(1, 300), vehicle_stream(2, 300), strict=True) for r in pair
+    ]
+    for record in records:
+        sink.write(record)
+    expected = expected_published(records)
+    # TCP loopback, reliable, 2.9k small samples far below the link's capacity: nothing is
+    # dropped (congestion control DROP only drops when the TX queue stays full for 1 ms)
+    assert wait_until(lambda: len(collector.samples) >= len(expected), 15)
+    assert len(collector.samples) == len(expected)
+
+    keys = {key for key, _, _ in collector.samples}
+    for sysid in (1, 2):
+        want = {f"glmav/{sysid}/velocity/{c}" for c in (*CONFIGS, "active")}
+        want |= {f"glmav/{sysid}/{k}" for k in ("health", "measurement", "truth")}
+        assert want <= keys
+    assert len(keys) == 2 * 8
+
+    validators = {sid: jsonschema.Draft202012Validator(s) for sid, s in SCHEMAS.items()}
+    by_key: dict[str, list[Any]] = defaultdict(list)
+    for key, encoding, value in collector.samples:
+        assert encoding == "application/json"
+        assert validate(value) == [], (key, validate(value))
+        validators[value["schema"]].validate(value)
+        by_key[key].append(value)
+    want_by_key: dict[str, list[Any]] = defaultdict(list)
+    for key, record in expected:
+        want_by_key[key].append(record.to_dict())
+    # per key, in order, the exact values the sink was given (JSON round-trips floats exactly)
+    assert by_key == want_by_key
+    assert sink.stats()["errors"] == 0
+    n_velocity = sum(1 for k, _ in expected if "/velocity/" in k and not k.endswith("active"))
+    assert sink.published["velocity"] - published0 == n_velocity == 2 * 4 * 300 // 2
+    assert sink.decimated["velocity"] - decimated0 == 2 * 4 * 300 - n_velocity
+
+
+def test_state_and_config_queryables(sink: ZenohSink, viewer: Any) -> None:
+    for record in vehicle_stream(1, 60) + vehicle_stream(2, 30):
+        sink.write(record)
+
+    def query(selector: str) -> dict[str, Any]:
+        replies = {}
+        for reply in viewer.get(selector, timeout=5.0):
+            assert reply.ok is not None, reply.err.payload.to_string()
+            assert str(reply.ok.encoding) == "application/json"
+            replies[str(reply.ok.key_expr)] = json.loads(reply.ok.payload.to_bytes())
+        return replies
+
+    states = query("glmav/*/state")
+    assert sorted(states) == ["glmav/1/state", "glmav/2/state"]
+    for key, state in states.items():
+        assert validate(state) == []
+        jsonschema.validate(state, SCHEMAS["glmav.state/1"])
+        sysid, last_step = (1, 59) if key == "glmav/1/state" else (2, 29)
+        assert state["sysid"] == sysid and state["service_id"] == "test-svc"
+        # the latest record of each kind, decimated or not
+        for config in (*CONFIGS, "active"):
+            assert state["velocity"][config] == velocity(sysid, config, last_step).to_dict()
+        assert state["health"] == health(sysid, last_step // 25).to_dict()
+        assert state["measurement"]["seq"] == last_step // 8
+        assert state["truth"]["seq"] == last_step // 5
+    assert sorted(query("glmav/2/state")) == ["glmav/2/state"]
+    assert query("glmav/7/state") == {}
+
+    configs = query("glmav/@config/*")
+    assert list(configs) == ["glmav/@config/test-svc"]
+    config = configs["glmav/@config/test-svc"]
+    assert validate(config) == []
+    assert config["config"] == EFFECTIVE
+    assert config["decimation"] == DECIMATION
+    assert config["zenoh_config"].endswith("client.json5")
+
+
+def test_liveliness_tokens_follow_service_and_vehicles(
+    router: RouterProcess, tmp_path: Path, viewer: Any
+) -> None:
+    events: list[tuple[str, str]] = []
+    listener = viewer.liveliness().declare_subscriber(
+        "glmav/@alive/**",
+        lambda s: events.append((str(s.key_expr), "+" if s.kind == zenoh.SampleKind.PUT else "-")),
+        history=True,
+    )
+    sink = open_zenoh_sink(
+        str(client_config(tmp_path / "c.json5", router.port)),
+        service_id="live-svc",
+        effective_config={},
+        vehicle_timeout_s=0.3,
+    )
+    try:
+        assert wait_until(lambda: ("glmav/@alive/live-svc", "+") in events, 5)
+        sink.write(velocity(4, "full", 0))
+        assert wait_until(lambda: ("glmav/@alive/live-svc/4", "+") in events, 5)
+        assert sink.alive_vehicles() == [4]
+        # silent for vehicle_timeout_s (0.3 s) -> withdrawn by the watchdog (period 0.075 s)
+        assert wait_until(lambda: ("glmav/@alive/live-svc/4", "-") in events, 5)
+        assert sink.alive_vehicles() == []
+        sink.write(velocity(4, "full", 1))  # back: declared again
+        assert wait_until(lambda: events.count(("glmav/@alive/live-svc/4", "+")) == 2, 5)
+    finally:
+        sink.close()
+    assert wait_until(lambda: ("glmav/@alive/live-svc", "-") in events, 5)
+    assert wait_until(lambda: events.count(("glmav/@alive/live-svc/4", "-")) == 2, 5)
+    listener.undeclare()
+    sink.write(velocity(4, "full", 2))  # after close: counted, harmless
+    assert sink.after_close == 1
+
+
+def test_client_without_router_is_a_clear_config_error(
+    tmp_path: Path, free_tcp_port: Callable[[], int]
+) -> None:
+    port = free_tcp_port()  # nothing listens there
+    path = client_config(tmp_path / "norouter.json5", port)
+    with pytest.raises(ZenohConfigError) as info:
+        open_zenoh_sink(str(path), service_id="x", effective_config={})
+    message = str(info.value)
+    assert message.startswith(f"{path}: cannot open the Zenoh session (mode client")
+    assert f"tcp/127.0.0.1:{port}" in message
+    assert "/root/.cargo" not in message  # no Rust source locations
