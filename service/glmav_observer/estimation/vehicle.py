@@ -1,0 +1,497 @@
+"""One vehicle's estimator: the observer bank, fault isolation, the active estimate, records.
+
+Pure (no I/O, no clock but the vehicle's): :meth:`VehicleEstimator.on_sample` takes the
+typed samples of one vehicle in vehicle-time order and returns the records to publish.
+
+Step rule (zero-order hold). Every sample at a time t later than the bank's time first
+advances the bank from its time to t with the inputs held since the previous samples
+(:meth:`ObserverBank.step` solves (16) exactly over the interval), then updates the held
+input it carries: attitude (ATTITUDE), specific force and gyro rates (IMU), the velocity
+measurement (LOCAL_POSITION_NED, corrected at its own time stamp). Velocity records are
+produced after each IMU-driven step; a health record every 1/``health_rate_hz`` s.
+
+Held measurement. Between two velocity samples the measurement is held; a held y lags
+the truth by about its age times |V̇|. With ``propagate_held_measurement`` it is carried
+forward with the IMU instead, y(t) ≈ y(t_y) + ∫_{t_y}^{t} (E f + g e_d − b̂) dt (V̇ = E Γ,
+equations.md), which removes that lag (docs/observer.md measures both).
+
+Accelerometer bias. The FDI estimates the earth-frame bias b̂ from vetted samples
+(:mod:`glmav_observer.estimation.fdi`); with ``compensate_accel_bias`` the bank is fed
+f − Eᵀ b̂, so that a dead-reckoned axis drifts with the error of b̂ only.
+
+Active estimate and hand-over. ``full`` while every axis is healthy. When the FDI
+isolates axis j, the configuration without j (n -> c2, e -> c3, d -> c1) is started
+from the last good estimate: ``full``'s current NED velocity, which the FDI's gate kept
+free of the faulty samples (if it differs from the FDI's dead reckoning from vetted data
+by more than ``handover_contamination_mps``, the dead reckoning is used instead). Its
+lost axis is reported as dead-reckoned with σ = √(σ0² + (σ_b t)² + q t), t since the
+hand-over. When the axis recovers, ``full`` is restarted from the active estimate.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from glmav_observer.estimation.bank import ObserverBank
+from glmav_observer.estimation.fdi import AxisState, FaultDetector, FdiConfig
+from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact
+from glmav_observer.ingest.samples import (
+    AttitudeSample,
+    ImuSample,
+    Sample,
+    TruthSample,
+    VelocitySample,
+)
+from glmav_observer.records import (
+    CONFIGS,
+    LOST_AXIS_OF_CONFIG,
+    NED_AXES,
+    FaultEvent,
+    HealthRecord,
+    MeasurementRecord,
+    Record,
+    TruthRecord,
+    VelocityRecord,
+)
+
+#: The configuration that does not use each NED axis (index 0 n, 1 e, 2 d).
+CONFIG_WITHOUT_AXIS: tuple[str, str, str] = ("c2", "c3", "c1")
+_CONFIG_INDEX = {c: i for i, c in enumerate(CONFIGS)}
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorConfig:
+    """Estimation settings (``[estimation]`` and ``[fdi]`` of ``configs/service.toml``)."""
+
+    gamma: Mapping[str, float] | None = None
+    e_form: EForm = "exact"
+    g_mps2: float = G_MPS2
+    health_rate_hz: float = 10.0
+    propagate_held_measurement: bool = True
+    compensate_accel_bias: bool = True
+    max_gap_s: float = 1.0
+    handover_contamination_mps: float = 0.1
+    metrics_skip_s: float = 3.0
+    fdi: FdiConfig = field(default_factory=FdiConfig)
+
+
+@dataclass(frozen=True, slots=True)
+class SwitchEvent:
+    """A change of the active configuration."""
+
+    t_boot_s: float
+    from_config: str
+    to_config: str
+    reason: str
+    v_before_ned_mps: Vec3
+    jump_mps: float | None = None  # |active after − active before| at the next record
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "t_boot_s": self.t_boot_s,
+            "from": self.from_config,
+            "to": self.to_config,
+            "reason": self.reason,
+            "jump_mps": self.jump_mps,
+        }
+
+
+@dataclass
+class ErrorStats:
+    """Running error statistics of one estimate against truth, per NED axis."""
+
+    n: int = 0
+    sum_sq: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    max_abs: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def add(self, err: Vec3) -> None:
+        self.n += 1
+        for i in range(3):
+            self.sum_sq[i] += err[i] * err[i]
+            self.max_abs[i] = max(self.max_abs[i], abs(err[i]))
+
+    def rmse(self) -> Vec3 | None:
+        if self.n == 0:
+            return None
+        return (
+            math.sqrt(self.sum_sq[0] / self.n),
+            math.sqrt(self.sum_sq[1] / self.n),
+            math.sqrt(self.sum_sq[2] / self.n),
+        )
+
+
+def _e_times(E: list[float], v: Vec3 | list[float]) -> list[float]:
+    return [
+        E[0] * v[0] + E[1] * v[1] + E[2] * v[2],
+        E[3] * v[0] + E[4] * v[1] + E[5] * v[2],
+        E[6] * v[0] + E[7] * v[1] + E[8] * v[2],
+    ]
+
+
+def _et_times(E: list[float], v: list[float]) -> list[float]:
+    return [
+        E[0] * v[0] + E[3] * v[1] + E[6] * v[2],
+        E[1] * v[0] + E[4] * v[1] + E[7] * v[2],
+        E[2] * v[0] + E[5] * v[1] + E[8] * v[2],
+    ]
+
+
+class VehicleEstimator:
+    """Bank + FDI + active selection + records for one vehicle (see the module docstring)."""
+
+    def __init__(
+        self,
+        sysid: int,
+        config: EstimatorConfig,
+        counters: collections.Counter[str] | None = None,
+        rates_fn: Callable[[float], dict[str, float]] | None = None,
+    ) -> None:
+        self.sysid = sysid
+        self.cfg = config
+        self.counters: collections.Counter[str] = (
+            counters if counters is not None else collections.Counter()
+        )
+        self.rates_fn = rates_fn
+        self.faults: list[FaultEvent] = []
+        self.switches: list[SwitchEvent] = []
+        self.errors: dict[str, ErrorStats] = {c: ErrorStats() for c in (*CONFIGS, "active")}
+        self._seq: collections.Counter[str] = collections.Counter()
+        self._restart()
+
+    # ------------------------------------------------------------------ state
+    def _restart(self) -> None:
+        cfg = self.cfg
+        self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2)
+        self.fdi = FaultDetector(cfg.fdi)
+        self.t_bank_s: float | None = None
+        self.t_first_s: float | None = None
+        self._euler: Vec3 | None = None
+        self._omega_att: Vec3 = (0.0, 0.0, 0.0)
+        self._omega_imu: Vec3 | None = None
+        self._f: Vec3 | None = None
+        self._E: list[float] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        self._y: list[float] = [math.nan] * 3
+        self._t_y_s = 0.0
+        self._a_int: list[float] = [0.0, 0.0, 0.0]
+        self._a_int_at_y: list[float] = [0.0, 0.0, 0.0]
+        self._use: list[bool] = [False, False, False]
+        self._active = "full"
+        self._lost_axis_idx: int | None = None
+        self._t_handover_s = 0.0
+        self._t_seed_s = [0.0] * 4
+        self._pending_switch: SwitchEvent | None = None
+        self._next_health_s: float | None = None
+        self._last_residual: list[float] = [math.nan] * 3
+        self._last_ratio: list[float] = [0.0, 0.0, 0.0]
+        self._missing = False
+        self._latest_ned: np.ndarray[Any, Any] | None = None
+        self._latest_active_ned: Vec3 | None = None
+
+    def restart(self, reason: str) -> None:
+        """Start the bank afresh (clock reset, long gap); metrics and events are kept."""
+        self.counters[f"estimator_restart_{reason}"] += 1
+        self._restart()
+
+    @property
+    def active_config(self) -> str:
+        return self._active
+
+    def _seqn(self, key: str) -> int:
+        self._seq[key] += 1
+        return self._seq[key]
+
+    # ------------------------------------------------------------------ samples
+    def on_sample(self, s: Sample) -> list[Record]:
+        """Consume one sample of this vehicle; return the records it produces."""
+        out: list[Record] = []
+        if isinstance(s, TruthSample):
+            self._truth(s, out)
+            return out
+        t = s.t_boot_s
+        if self.t_bank_s is not None and t > self.t_bank_s:
+            if t - self.t_bank_s > self.cfg.max_gap_s:
+                self.restart("gap")
+            else:
+                self._step_to(t)
+        if isinstance(s, AttitudeSample):
+            self._euler = s.euler_rad
+            self._omega_att = s.omega_body_radps
+        elif isinstance(s, ImuSample):
+            self._f = s.f_body_mps2
+            self._omega_imu = s.omega_body_radps
+            if self.t_bank_s is not None:
+                self._check_missing(t)
+                self._velocity_records(out)
+                self._health(t, out)
+        elif isinstance(s, VelocitySample):
+            self._measurement(s, out)
+        return out
+
+    def _omega(self) -> Vec3:
+        return self._omega_imu if self._omega_imu is not None else self._omega_att
+
+    def _step_to(self, t: float) -> None:
+        """Advance the bank and the IMU integral A from t_bank to t, inputs held (ZOH)."""
+        assert self.t_bank_s is not None and self._euler is not None and self._f is not None
+        dt = t - self.t_bank_s
+        cfg = self.cfg
+        bias = self.fdi.bias_ned_mps2()
+        y = self._y
+        if cfg.propagate_held_measurement:
+            age = self.t_bank_s - self._t_y_s
+            y = [y[i] + (self._a_int[i] - self._a_int_at_y[i]) - bias[i] * age for i in range(3)]
+        f = self._f
+        E_prev = self._E
+        f_bank: Vec3 | list[float] = f
+        if cfg.compensate_accel_bias:
+            fb = _et_times(E_prev, bias)
+            f_bank = [f[0] - fb[0], f[1] - fb[1], f[2] - fb[2]]
+        mask = self._mask()
+        self.bank.step(dt, self._euler, self._omega(), f_bank, y, mask)
+        E = self.bank.e_last.ravel().tolist()
+        self._E = E
+        a = _e_times(E, f)  # earth-frame acceleration E Γ = E f + g e_d (V̇ = E Γ)
+        a[2] += cfg.g_mps2
+        for i in range(3):
+            self._a_int[i] += a[i] * dt
+        self.t_bank_s = t
+        self._latest_ned = None
+
+    def _mask(self) -> list[bool] | None:
+        if all(self._use):
+            return None
+        return self._use
+
+    def _init_from(self, s: VelocitySample) -> bool:
+        """The first full velocity measurement with attitude and IMU known starts the bank."""
+        if self._euler is None or self._f is None:
+            self.counters["warmup_samples"] += 1
+            return False
+        y = s.v_ned_mps
+        if not all(math.isfinite(c) for c in y):
+            self.counters["warmup_samples"] += 1
+            return False
+        for c in CONFIGS:
+            self.bank.set_state_ned(c, y, self._euler)
+        self.bank.step(0.0, self._euler, self._omega(), self._f, y, None)
+        self._E = self.bank.e_last.ravel().tolist()
+        self.t_bank_s = s.t_boot_s
+        self.t_first_s = s.t_boot_s
+        self._t_seed_s = [s.t_boot_s] * 4
+        self._next_health_s = s.t_boot_s
+        return True
+
+    # ------------------------------------------------------------------ measurement + FDI
+    def _measurement(self, s: VelocitySample, out: list[Record]) -> None:
+        t = s.t_boot_s
+        out.append(
+            MeasurementRecord(
+                self.sysid,
+                t,
+                s.v_ned_mps,
+                s.position_ned_m,
+                self._seqn("measurement"),
+                self._euler,
+            )
+        )
+        if self.t_bank_s is None and not self._init_from(s):
+            return
+        faulty_before = set(self.fdi.faulty_axes())
+        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int)
+        self._y = list(s.v_ned_mps)
+        self._t_y_s = t
+        self._a_int_at_y = list(self._a_int)
+        self._use = [v.use for v in verdicts]
+        self._last_residual = [v.residual_mps for v in verdicts]
+        self._last_ratio = [v.test_ratio for v in verdicts]
+        if self._missing:
+            self._missing = False
+        self._after_fdi(t, faulty_before)
+
+    def _check_missing(self, t: float) -> None:
+        """No velocity measurement for ``missing_timeout_s``: a dropout of every axis."""
+        if self._missing or t - self._t_y_s <= self.cfg.fdi.missing_timeout_s:
+            return
+        self._missing = True
+        self.counters["measurement_missing"] += 1
+        faulty_before = set(self.fdi.faulty_axes())
+        for ax in self.fdi.axes:
+            ax.force_dropout(t)
+        self._use = [False, False, False]
+        self._after_fdi(t, faulty_before)
+
+    def _after_fdi(self, t: float, faulty_before: set[int]) -> None:
+        faulty = self.fdi.faulty_axes()
+        for j in faulty:
+            if j not in faulty_before:
+                ev = self.fdi.axes[j].fault
+                assert ev is not None
+                self.faults.append(ev)
+                self.counters[f"fault_{ev.kind}_{ev.axis}"] += 1
+        wanted = CONFIG_WITHOUT_AXIS[faulty[0]] if faulty else "full"
+        if wanted != self._active:
+            self._switch(t, wanted, faulty[0] if faulty else None)
+
+    def _switch(self, t: float, to: str, lost_idx: int | None) -> None:
+        ned = self.bank.x_hat_ned_mps()
+        before = ned[_CONFIG_INDEX[self._active]].tolist()
+        v0 = list(before)
+        reason = "recovered"
+        if lost_idx is not None:
+            ax = self.fdi.axes[lost_idx]
+            reason = f"{ax.fault.kind if ax.fault else 'fault'}_{NED_AXES[lost_idx]}"
+            if self._active == "full":
+                pred = ax.predict_mps(t, self._a_int[lost_idx])
+                if (
+                    math.isfinite(pred)
+                    and abs(pred - v0[lost_idx]) > self.cfg.handover_contamination_mps
+                ):
+                    self.counters["handover_from_dead_reckoning"] += 1
+                    v0[lost_idx] = pred
+            self._t_handover_s = t
+        assert self._euler is not None
+        self.bank.set_state_ned(to, v0, self._euler)
+        self._t_seed_s[_CONFIG_INDEX[to]] = t
+        self._latest_ned = None
+        self.switches.append(
+            SwitchEvent(t, self._active, to, reason, (before[0], before[1], before[2]))
+        )
+        self._pending_switch = self.switches[-1]
+        self._active = to
+        self._lost_axis_idx = lost_idx
+
+    # ------------------------------------------------------------------ records
+    def _sigma_lost(self, t: float, t0: float) -> float:
+        c = self.cfg.fdi
+        age = max(0.0, t - t0)
+        return math.sqrt(
+            c.sigma_handover_mps**2
+            + (c.sigma_bias_mps2 * age) ** 2
+            + c.accel_noise_density**2 * age
+        )
+
+    def _velocity_records(self, out: list[Record]) -> None:
+        t = self.t_bank_s
+        assert t is not None
+        body = self.bank.x_hat_body_mps.tolist()
+        ned = self.bank.x_hat_ned_mps()
+        self._latest_ned = ned
+        ned_l = ned.tolist()
+        n_faulty = len(self.fdi.faulty_axes())
+        for i, c in enumerate(CONFIGS):
+            lost = LOST_AXIS_OF_CONFIG[c]
+            health = "ok" if c == "full" and n_faulty == 0 else "degraded"
+            if lost is not None:
+                health = "dead_reckoning"
+            out.append(
+                VelocityRecord(
+                    self.sysid,
+                    c,
+                    t,
+                    (body[i][0], body[i][1], body[i][2]),
+                    (ned_l[i][0], ned_l[i][1], ned_l[i][2]),
+                    lost,  # type: ignore[arg-type]
+                    health,
+                    self._seqn(c),
+                    None,
+                    None if lost is None else self._sigma_lost(t, self._t_seed_s[i]),
+                )
+            )
+        a = _CONFIG_INDEX[self._active]
+        a_ned = (ned_l[a][0], ned_l[a][1], ned_l[a][2])
+        lost_a = LOST_AXIS_OF_CONFIG[self._active]
+        if n_faulty == 0:
+            health_a = "ok"
+        elif n_faulty == 1:
+            health_a = "dead_reckoning"
+        else:
+            health_a = "degraded"
+        out.append(
+            VelocityRecord(
+                self.sysid,
+                "active",
+                t,
+                (body[a][0], body[a][1], body[a][2]),
+                a_ned,
+                lost_a,  # type: ignore[arg-type]
+                health_a,
+                self._seqn("active"),
+                self._active,
+                None if lost_a is None else self._sigma_lost(t, self._t_handover_s),
+            )
+        )
+        if self._pending_switch is not None:
+            sw = self._pending_switch
+            jump = math.dist(sw.v_before_ned_mps, a_ned)
+            self.switches[self.switches.index(sw)] = SwitchEvent(
+                sw.t_boot_s, sw.from_config, sw.to_config, sw.reason, sw.v_before_ned_mps, jump
+            )
+            self._pending_switch = None
+        self._latest_active_ned = a_ned
+
+    def _health(self, t: float, out: list[Record]) -> None:
+        if self._next_health_s is None or t < self._next_health_s:
+            return
+        period = 1.0 / self.cfg.health_rate_hz
+        while self._next_health_s <= t:
+            self._next_health_s += period
+        res = self._last_residual
+        rat = self._last_ratio
+        out.append(
+            HealthRecord(
+                self.sysid,
+                t,
+                self._seqn("health"),
+                self._active,
+                (res[0], res[1], res[2]),
+                (rat[0], rat[1], rat[2]),
+                self.fdi.states(),
+                tuple(a.fault for a in self.fdi.axes if a.fault is not None),
+                self.rates_fn(t) if self.rates_fn is not None else {},
+                dict(sorted(self.counters.items())),
+            )
+        )
+
+    def _truth(self, s: TruthSample, out: list[Record]) -> None:
+        E = e_exact(np.asarray(s.euler_rad)).ravel().tolist()
+        v_body = _et_times(E, list(s.v_ned_mps))
+        out.append(
+            TruthRecord(
+                self.sysid,
+                s.t_boot_s,
+                (v_body[0], v_body[1], v_body[2]),
+                s.v_ned_mps,
+                s.euler_rad,
+                None,
+                self._seqn("truth"),
+            )
+        )
+        if (
+            self.t_first_s is None
+            or self._latest_active_ned is None
+            or s.t_boot_s < self.t_first_s + self.cfg.metrics_skip_s
+        ):
+            return
+        ned = self._latest_ned if self._latest_ned is not None else self.bank.x_hat_ned_mps()
+        v = s.v_ned_mps
+        for i, c in enumerate(CONFIGS):
+            e = ned[i]
+            self.errors[c].add((float(e[0]) - v[0], float(e[1]) - v[1], float(e[2]) - v[2]))
+        a = self._latest_active_ned
+        self.errors["active"].add((a[0] - v[0], a[1] - v[1], a[2] - v[2]))
+
+    # ------------------------------------------------------------------ summary
+    def rmse_ned_mps(self) -> dict[str, Vec3 | None]:
+        """Per configuration (and ``active``): RMSE against SIM_STATE per NED axis."""
+        return {c: st.rmse() for c, st in self.errors.items()}
+
+    def axis_states(self) -> dict[str, AxisState]:
+        return {ax: m.state for ax, m in zip(NED_AXES, self.fdi.axes, strict=True)}
