@@ -1,0 +1,195 @@
+"""Keys, payload encoding and configuration checks of the Zenoh sink (no sessions)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+
+from glmav_observer.publish.zenoh_sink import (
+    DEFAULT_DECIMATION,
+    EMBEDDED_DEFAULT_JSON5,
+    KINDS,
+    ZenohConfigError,
+    alive_key,
+    check_decimation,
+    check_prefix,
+    check_service_id,
+    clean_zenoh_error,
+    config_key,
+    default_service_id,
+    encode_json,
+    encode_payload,
+    load_zenoh_config,
+    route,
+    state_key,
+)
+from glmav_observer.records import (
+    HealthRecord,
+    MeasurementRecord,
+    TruthRecord,
+    VelocityRecord,
+)
+
+REPO = Path(__file__).resolve().parents[4]
+CONFIG_DIR = REPO / "configs" / "zenoh"
+
+
+def _get(config: Any, key: str) -> Any:
+    return json.loads(config.get_json(key))
+
+
+def _vel(config: str, sysid: int = 3) -> VelocityRecord:
+    return VelocityRecord(sysid, config, 1.5, (1.0, 2.0, 3.0), (0.1, 0.2, 0.3), None, "ok", 4)
+
+
+def test_routes_follow_the_design_key_table() -> None:
+    nan3 = (float("nan"),) * 3
+    health = HealthRecord(7, 0.1, 1, "full", nan3, nan3, {}, (), {}, {})
+    cases = [
+        (_vel("full"), ("velocity", "glmav/3/velocity/full", "full")),
+        (_vel("c3"), ("velocity", "glmav/3/velocity/c3", "c3")),
+        (_vel("active"), ("active", "glmav/3/velocity/active", "active")),
+        (health, ("health", "glmav/7/health", "health")),
+        (MeasurementRecord(2, 0.0, nan3, nan3, 0), ("measurement", "glmav/2/measurement", "measurement")),
+        (TruthRecord(2, 0.0, nan3, nan3, nan3, None, 0), ("truth", "glmav/2/truth", "truth")),
+    ]  # fmt: skip
+    for record, want in cases:
+        assert route("glmav", record) == want
+    assert route("fleet/a", _vel("c1", 12))[1] == "fleet/a/12/velocity/c1"
+    with pytest.raises(TypeError):
+        route("glmav", object())  # type: ignore[arg-type]
+    assert state_key("glmav") == "glmav/*/state"
+    assert state_key("glmav", 4) == "glmav/4/state"
+    assert config_key("glmav", "gs1") == "glmav/@config/gs1"
+    assert alive_key("glmav", "gs1") == "glmav/@alive/gs1"
+    assert alive_key("glmav", "gs1", 4) == "glmav/@alive/gs1/4"
+    # the wildcard state queryable does not answer the verbatim @config/@alive chunks
+    assert not zenoh.KeyExpr(state_key("glmav")).intersects(config_key("glmav", "gs1"))
+    assert zenoh.KeyExpr(state_key("glmav")).intersects("glmav/4/state")
+
+
+def test_payload_is_compact_json_of_to_dict_with_nan_as_null() -> None:
+    record = VelocityRecord(1, "c1", 2.0, (1.0, float("nan"), 3.0), (1.0, 2.0, 3.0), "d", "ok", 9)
+    raw = encode_payload(record)
+    assert b" " not in raw
+    assert json.loads(raw) == record.to_dict()
+    assert json.loads(raw)["v_body_mps"] == [1.0, None, 3.0]
+    # non-finite scalars that to_dict passes through still give valid JSON
+    assert json.loads(encode_json({"a": float("inf"), "b": [float("nan")], "c": {"d": 1.5}})) == {
+        "a": None,
+        "b": [None],
+        "c": {"d": 1.5},
+    }
+
+
+@pytest.mark.parametrize("prefix", ["", "a//b", "/glmav", "glmav/", "gl*", "a/$x", "g/@x", "a?b"])
+def test_bad_prefixes_are_refused(prefix: str) -> None:
+    with pytest.raises(ZenohConfigError, match="zenoh prefix"):
+        check_prefix(prefix)
+
+
+@pytest.mark.parametrize("service_id", ["", "a/b", "@x", "a*", "a#b"])
+def test_bad_service_ids_are_refused(service_id: str) -> None:
+    with pytest.raises(ZenohConfigError, match="zenoh service id"):
+        check_service_id(service_id)
+
+
+def test_default_service_id_is_one_valid_chunk() -> None:
+    sid = default_service_id()
+    assert check_service_id(sid) == sid
+    zenoh.KeyExpr(alive_key("glmav", sid))  # a valid key expression
+
+
+def test_decimation_defaults_and_errors() -> None:
+    assert check_decimation(None) == DEFAULT_DECIMATION == dict.fromkeys(KINDS, 1)
+    assert check_decimation({"velocity": 5, "truth": 0})["velocity"] == 5
+    for bad, message in [
+        ({"speed": 1}, "unknown key kind 'speed'"),
+        ({"health": -1}, "decimation.health: -1 is not an integer >= 0"),
+        ({"active": 2.5}, "decimation.active: 2.5"),
+        ({"active": True}, "decimation.active: True"),
+    ]:
+        with pytest.raises(ZenohConfigError, match=message):
+            check_decimation(bad)
+
+
+def test_shipped_configs_parse_and_keep_multicast_where_documented() -> None:
+    names = sorted(p.name for p in CONFIG_DIR.glob("*.json5"))
+    assert names == [
+        "acl-router.json5",
+        "acl-service-client.json5",
+        "client-router.json5",
+        "client-tls.json5",
+        "peer-lan.json5",
+        "peer-local.json5",
+        "router-tls.json5",
+        "router.json5",
+    ]
+    for name in names:
+        config, shown = load_zenoh_config(CONFIG_DIR / name)
+        assert shown == str(CONFIG_DIR / name)
+        multicast = _get(config, "scouting/multicast/enabled")
+        assert multicast is (name == "peer-lan.json5"), name
+    acl, _ = load_zenoh_config(CONFIG_DIR / "acl-router.json5")
+    assert _get(acl, "access_control/enabled") is True
+    assert _get(acl, "access_control/default_permission") == "deny"
+    tls, _ = load_zenoh_config(CONFIG_DIR / "router-tls.json5")
+    assert _get(tls, "listen/endpoints") == ["tls/0.0.0.0:7447"]
+    assert _get(tls, "transport/link/tls/enable_mtls") is True
+
+
+def test_peer_local_file_equals_the_embedded_default() -> None:
+    from_file, _ = load_zenoh_config(CONFIG_DIR / "peer-local.json5")
+    embedded, name = load_zenoh_config(None)
+    assert name == "<embedded peer-local default>"
+    assert str(from_file) == str(embedded)
+    assert zenoh.Config.from_json5(EMBEDDED_DEFAULT_JSON5) is not None
+    assert _get(embedded, "mode") == "peer"
+    assert _get(embedded, "listen/endpoints") == ["tcp/127.0.0.1:0"]
+    assert _get(embedded, "connect/endpoints") == ["tcp/127.0.0.1:7447"]
+    assert _get(embedded, "scouting/multicast/enabled") is False
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ('{ mode: "client", connect: { endpoints: [', "expected"),
+        ('{ mode: "rooter" }', "unknown variant `rooter`"),
+        ("{ listne: {} }", "unknown field `listne`"),
+        (
+            '{ mode: "client", scouting: { multicast: { enabled: false } } }',
+            "needs connect.endpoints",
+        ),
+        ("[1, 2]", "invalid type"),
+    ],
+)
+def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, problem: str) -> None:
+    path = tmp_path / "bad.json5"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ZenohConfigError) as info:
+        load_zenoh_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ")
+    assert problem in message
+    assert "/root/.cargo" not in message
+    assert isinstance(info.value, ValueError)
+
+
+def test_unreadable_files(tmp_path: Path) -> None:
+    with pytest.raises(ZenohConfigError, match=r"missing\.json5: cannot read: No such file"):
+        load_zenoh_config(tmp_path / "missing.json5")
+    binary = tmp_path / "bin.json5"
+    binary.write_bytes(b"\xff\xfe{}")
+    with pytest.raises(ZenohConfigError, match=r"bin\.json5: not UTF-8"):
+        load_zenoh_config(binary)
+    with pytest.raises(ZenohConfigError, match="cannot read"):
+        load_zenoh_config(tmp_path)  # a directory
+
+
+def test_clean_zenoh_error_drops_rust_locations() -> None:
+    err = "Unable to connect to any of [x]!  at /root/.cargo/git/z/orchestrator.rs:447."
+    assert clean_zenoh_error(RuntimeError(err)) == "Unable to connect to any of [x]!"
