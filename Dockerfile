@@ -35,17 +35,14 @@ RUN --mount=type=secret,id=pipconf --mount=type=secret,id=cacert \
     /opt/glmav/bin/pip install --only-binary=:all: -r /src/constraints.txt \
     && /opt/build/bin/pip install setuptools==84.2.1 wheel==0.48.0
 
-# 2) The project itself, as a wheel, without touching the dependency set; `pip check`
-#    fails the build if constraints.txt no longer satisfies pyproject.toml.
+RUN /opt/glmav/bin/python -m compileall -q /opt/glmav/lib
+
+# 2) The project's wheel (installed in the final stage, so that a source edit rebuilds a
+#    small layer instead of copying the whole environment again).
 COPY pyproject.toml README.md /src/
 COPY service /src/service
 COPY sim_bridge /src/sim_bridge
-RUN cd /src \
-    && /opt/build/bin/pip wheel --no-deps --no-build-isolation --wheel-dir /tmp/wheels . \
-    && /opt/glmav/bin/pip install --no-deps --no-index /tmp/wheels/glmav_observer-*.whl \
-    && /opt/glmav/bin/pip check \
-    && /opt/glmav/bin/python -m compileall -q /opt/glmav/lib \
-    && /opt/glmav/bin/python -c "import glmav_observer, glmav_sitl"
+RUN cd /src && /opt/build/bin/pip wheel --no-deps --no-build-isolation --wheel-dir /wheels .
 
 # ---------------------------------------------------------------------------------------
 FROM ${PYTHON_IMAGE} AS runtime
@@ -65,20 +62,31 @@ RUN groupadd --gid 10001 glmav \
        --create-home --shell /usr/sbin/nologin glmav
 
 COPY --from=builder /opt/glmav /opt/glmav
+# The project, without touching the dependency set; `pip check` fails the build if
+# constraints.txt no longer satisfies pyproject.toml.
+RUN --mount=type=bind,from=builder,source=/wheels,target=/wheels \
+    PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 \
+       pip install --no-deps --no-index --no-compile /wheels/glmav_observer-*.whl \
+    && pip check \
+    && python -m compileall -q /opt/glmav/lib/python3.11/site-packages/glmav_observer \
+       /opt/glmav/lib/python3.11/site-packages/glmav_sitl \
+    && python -c "import glmav_observer, glmav_sitl"
 # Default configuration; compose (or `-v ./configs:/etc/glmav-observer:ro`) mounts the
 # site's own over it. The working directory holds a `configs` link so that relative
 # default paths (configs/...) resolve too.
 COPY configs /etc/glmav-observer
+COPY deploy/container/healthcheck.py /opt/glmav/healthcheck.py
 RUN ln -s /etc/glmav-observer /var/lib/glmav-observer/configs
 
 USER glmav:glmav
 WORKDIR /var/lib/glmav-observer
 
-# Healthy = this container's daemon holds its Zenoh liveliness token glmav/@alive/<id>
-# (see docs/container.md). Set GLMAV_HEALTH_ZENOH to the Zenoh config the daemon uses;
-# with no daemon in the container (router, sitl) the check reports on the process only.
-HEALTHCHECK --interval=30s --timeout=10s --start-period=20s --retries=3 \
-    CMD ["python", "-c", "import sys; sys.exit(0)"]
+# Healthy = this container's `glmav-observer serve` holds its Zenoh liveliness token
+# glmav/@alive/<service-id>, seen through a Zenoh session opened with GLMAV_HEALTH_ZENOH
+# (default /etc/glmav-observer/zenoh/client-router.json5). GLMAV_HEALTH=zenoh checks a router
+# instead, GLMAV_HEALTH=off disables it (simulator). See docs/container.md.
+HEALTHCHECK --interval=30s --timeout=15s --start-period=30s --retries=3 \
+    CMD ["python", "/opt/glmav/healthcheck.py"]
 
 ENTRYPOINT ["glmav-observer"]
 CMD ["serve"]
