@@ -896,8 +896,21 @@ def _data_job(
 # --------------------------------------------------------------------------- factory
 
 
-def _rerun_executable() -> str | None:
-    """The ``rerun`` viewer binary of the installed wheel (beside this Python), else PATH."""
+def rerun_executable() -> str | None:
+    """The viewer binary shipped in the rerun-sdk wheel (``rerun_cli/rerun``), else PATH.
+
+    The ``rerun`` console script is a Python wrapper that runs this binary as a child;
+    signals sent to the wrapper do not reach the viewer (SIGTERM orphans it, SIGINT kills
+    it without finishing its file), so processes this sink starts run the binary itself.
+    """
+    try:
+        import rerun_cli  # type: ignore[import-untyped]  # the wheel's viewer binary, no stubs
+
+        binary = Path(rerun_cli.__file__).with_name("rerun.exe" if os.name == "nt" else "rerun")
+        if binary.is_file() and os.access(binary, os.X_OK):
+            return str(binary)
+    except ImportError:
+        pass
     beside = Path(sys.executable).with_name("rerun")
     if beside.is_file() and os.access(beside, os.X_OK):
         return str(beside)
@@ -961,7 +974,7 @@ def open_rerun_sink(
     web_url: str | None = None
 
     if parsed.kind == "spawn":
-        exe = _rerun_executable()
+        exe = rerun_executable()
         reason = None
         if not _has_display(env):
             reason = "no DISPLAY or WAYLAND_DISPLAY"
@@ -1000,7 +1013,7 @@ def open_rerun_sink(
         rec.set_sinks(server)
         grpc_url = f"rerun+http://{serve_bind}:{grpc_port}/proxy"
         if web_port is not None:
-            exe = _rerun_executable()
+            exe = rerun_executable()
             if exe is None:
                 log.warning("rerun: no rerun executable found; the web viewer is not served")
             else:
