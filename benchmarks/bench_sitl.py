@@ -1,0 +1,120 @@
+"""Simulator speed: real-time factor of ``glmav-sitl`` as fast as possible, one core.
+
+Each case runs ``glmav_sitl.runner.run`` on the ``cruise`` scenario (closed loop, default
+sensors, all seven streams at their design.md rates encoded to MAVLink 2 and written to
+a tlog, no network link) for a fixed sim time; the real-time factor is sim time / wall
+time (median over repeats). Baseline in the same run: the physics alone (RK4 steps of
+``Simulator.step`` without sensors or MAVLink) at the same step, so the ratio shows what
+the streams cost. A cProfile of the dt = 1e-4 s case shows where the time goes.
+"""
+
+from __future__ import annotations
+
+import cProfile
+import io
+import pstats
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import format_goals, format_table, goal, main_for, time_per_call_s
+from glmav_sitl.runner import run as sitl_run
+from glmav_sitl.scenario import load_scenario
+from glmav_sitl.simulator import Simulator
+
+SCENARIO = "cruise"
+
+
+def _profile(sim_s: float, dt_s: float, tlog: Path, top: int = 15) -> list[dict[str, Any]]:
+    prof = cProfile.Profile()
+    prof.enable()
+    sitl_run(SCENARIO, [], duration_s=sim_s, speed="max", seed=1, tlog_path=tlog, dt_s=dt_s)
+    prof.disable()
+    st = pstats.Stats(prof, stream=io.StringIO())
+    total = st.total_tt  # type: ignore[attr-defined]
+    rows = []
+    entries = sorted(st.stats.items(), key=lambda kv: kv[1][2], reverse=True)  # type: ignore[attr-defined]
+    for (file, line, func), (_cc, nc, tt, ct, _callers) in entries[:top]:
+        short = Path(file).name if file != "~" else ""
+        rows.append(
+            {
+                "function": f"{short}:{line}({func})" if short else func,
+                "calls": nc,
+                "tottime_s": tt,
+                "share_%": 100.0 * tt / total,
+                "cumtime_s": ct,
+            }
+        )
+    return rows
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    repeats = 3 if quick else 5
+    rows: list[dict[str, Any]] = []
+    rtf: dict[float, float] = {}
+    sc = load_scenario(SCENARIO)
+    with tempfile.TemporaryDirectory() as d:
+        tlog = Path(d) / "bench.tlog"
+        for dt in (1e-4, 1e-3):
+            sim_s = (1.0 if quick else 4.0) * (1.0 if dt == 1e-4 else 5.0)
+
+            def full(dt: float = dt, sim_s: float = sim_s) -> None:
+                sitl_run(
+                    SCENARIO, [], duration_s=sim_s, speed="max", seed=1, tlog_path=tlog, dt_s=dt
+                )
+
+            t_full = time_per_call_s(full, number=1, repeats=repeats)
+
+            def physics(dt: float = dt, sim_s: float = sim_s, sc: Any = sc) -> None:
+                Simulator(sc, seed=1, dt_s=dt).run_for(sim_s)
+
+            t_phys = time_per_call_s(physics, number=1, repeats=repeats)
+            rtf[dt] = sim_s / t_full["median_s"]
+            n_steps = sim_s / dt
+            rows.append(
+                {
+                    "dt_s": dt,
+                    "sim_s": sim_s,
+                    "real_time_factor": rtf[dt],
+                    "physics_only_rtf": sim_s / t_phys["median_s"],
+                    "us_per_step_total": t_full["median_s"] / n_steps * 1e6,
+                    "us_per_step_physics": t_phys["median_s"] / n_steps * 1e6,
+                    "streams_share_%": 100.0 * (1 - t_phys["median_s"] / t_full["median_s"]),
+                    "tlog_bytes_per_sim_s": tlog.stat().st_size / sim_s,
+                }
+            )
+        profile = _profile(0.5 if quick else 2.0, 1e-4, tlog)
+    goals = [
+        goal(
+            "real-time factor at dt = 1e-4 s (sensors + MAVLink to tlog)",
+            rtf[1e-4],
+            20.0,
+            higher_is_better=True,
+        ),
+        goal(
+            "real-time factor at dt = 1e-3 s (the default step)",
+            rtf[1e-3],
+            20.0,
+            higher_is_better=True,
+        ),
+    ]
+    return {"name": "bench_sitl", "quick": quick, "rows": rows, "goals": goals, "profile": profile}
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    return (
+        "### Simulator (bench_sitl)\n\n"
+        "`cruise` scenario, as fast as possible, one core; median of repeats. "
+        "`physics_only_rtf`: the same steps without sensors or MAVLink (baseline, same run).\n\n"
+        + format_table(result["rows"])
+        + "\n\n"
+        + format_goals(result["goals"])
+        + "\n\ncProfile of the dt = 1e-4 s case (top entries by own time):\n\n"
+        + format_table(result["profile"])
+    )
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main_for(sys.modules[__name__]))
