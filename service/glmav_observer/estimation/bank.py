@@ -29,6 +29,7 @@ from glmav_observer.estimation.observer import (
     e_matrix,
     gamma_body_mps2,
     phi1_phi2_scalar,
+    phi_terms,
     rotate,
     rotate_t,
     zoh_earth,
@@ -430,6 +431,8 @@ class BatchedBank:
         self._gamma_arr = np.array(self.gamma_gain)
         self._x: FloatArray = np.zeros((self.n_vehicles, 4, 3))
         self._E_last: FloatArray = np.broadcast_to(np.eye(3), (self.n_vehicles, 3, 3)).copy()
+        self._h_cached = math.nan
+        self._terms: tuple[FloatArray, FloatArray, FloatArray] = (np.ones(1),) * 3
         self.last_meas_mask: BoolArray = np.broadcast_to(CONFIG_MASKS, (self.n_vehicles, 4, 3))
 
     @property
@@ -488,15 +491,19 @@ class BatchedBank:
             raise NonFiniteInputError(f"NaN or infinite euler/omega/f/dt for vehicle(s) {rows}")
         if (h < 0).any():
             raise ValueError("dt_s must be >= 0")
-        allowed = np.isfinite(y)[:, None, :]
-        if meas_mask is not None:
+        y_finite = np.isfinite(y)
+        masks: BoolArray
+        if meas_mask is None and y_finite.all():
+            masks = CONFIG_MASKS  # (4, 3) broadcasts against (n, 4, 3)
+        elif meas_mask is None:
+            masks = CONFIG_MASKS & y_finite[:, None, :]
+        else:
             mm = np.asarray(meas_mask)
             if mm.dtype != np.bool_ or mm.shape not in ((n, 3), (n, 4, 3)):
                 raise ShapeError(
                     f"meas_mask: expected bool ({n}, 3) or ({n}, 4, 3), got {mm.shape}"
                 )
-            allowed = allowed & (mm[:, None, :] if mm.ndim == 2 else mm)
-        masks = CONFIG_MASKS & allowed
+            masks = CONFIG_MASKS & y_finite[:, None, :] & (mm[:, None, :] if mm.ndim == 2 else mm)
         E = e_matrix(eul, self.e_form)
         hv = h[:, None] if h.ndim else h
         if self.e_form == "exact":
@@ -505,8 +512,16 @@ class BatchedBank:
             a = rotate(E, f)
             a[:, 2] += self.g_mps2
             ybar = np.where(masks, y[:, None, :], 0.0)
+            if h.ndim:
+                terms = phi_terms(self._gamma_arr, hv)
+            elif float(h) != self._h_cached:  # fixed rate: reuse the φ-terms
+                self._terms = phi_terms(self._gamma_arr, hv)
+                self._h_cached = float(h)
+                terms = self._terms
+            else:
+                terms = self._terms
             z1 = zoh_earth(rotate(Ev, self._x), rotate(E, w)[:, None], a[:, None], ybar, masks,
-                           self._gamma_arr, hv)  # fmt: skip
+                           self._gamma_arr, hv, terms)  # fmt: skip
             self._x = rotate_t(Ev, z1)
         else:
             Gam = gamma_body_mps2(f, eul, self.g_mps2)
@@ -515,4 +530,4 @@ class BatchedBank:
                 self._gamma_arr, hv, orthogonal_e=False,
             )  # fmt: skip
         self._E_last = E
-        self.last_meas_mask = masks
+        self.last_meas_mask = np.broadcast_to(masks, (n, 4, 3))

@@ -14,7 +14,7 @@ def _rows(text: str) -> dict[tuple[str, str], list[float]]:
     rows = {}
     for line in text.splitlines():
         parts = line.split()
-        if len(parts) == 8 and parts[0] in ("exact", "small_angle"):
+        if len(parts) == 9 and parts[0] in ("exact", "small_angle"):
             rows[(parts[0], parts[1])] = [float(p) for p in parts[2:]]
     return rows
 
@@ -24,7 +24,8 @@ def test_check_command_prints_the_decay_table(capsys: pytest.CaptureFixture[str]
     rows = _rows(capsys.readouterr().out)
     assert len(rows) == 8  # 2 E forms × 4 configurations
     for config, gamma in (("full", 12.0), ("c1", 90.0), ("c2", 70.0), ("c3", 70.0)):
-        g, rate, t1, lost1, lost_end, meas_end = rows[("exact", config)]
+        hz, g, rate, t1, lost1, lost_end, meas_end = rows[("exact", config)]
+        assert hz == 1000.0
         assert g == gamma
         # exact decay at γ, fitted above the 1 kHz hold floor: within 2 % (observed ≤ 1.3 %)
         assert abs(rate / gamma - 1) < 0.02
