@@ -18,7 +18,7 @@ from glmav_sitl.dynamics.model import (
     ModelOptions,
     initial_state,
     make_derivative,
-    rk4_step,
+    make_stepper,
     trim_rotor_speeds,
 )
 from glmav_sitl.params import VehicleParams, load_vehicle_params
@@ -79,6 +79,7 @@ class Simulator:
         self.control_every = max(1, round(ctl_us / self.dt_us))  # steps per control tick
         self.model_options = model_options or ModelOptions()
         self._f = make_derivative(self.params, self.model_options)
+        self._step = make_stepper(self.params, self.model_options)
         trim = trim_rotor_speeds(self.params, self.model_options)
         self.trim_rotor_radps = trim
         rotor0 = sc.rotor_radps if sc.rotor_radps is not None else trim
@@ -117,7 +118,7 @@ class Simulator:
 
     def step(self) -> None:
         """Advance one physics step (RK4, inputs and wind held)."""
-        self.x = rk4_step(self._f, self.x, self.u, self.wind_ned, self.dt_s)
+        self.x = self._step(self.x, self.u, self.wind_ned, self.dt_s)
         self.n_steps += 1
         self.t_us = self.n_steps * self.dt_us
         self._truth_cache = None

@@ -17,6 +17,7 @@ from glmav_sitl.dynamics.model import (
     ModelOptions,
     initial_state,
     make_derivative,
+    make_stepper,
     rk4_step,
     trim_rotor_speeds,
 )
@@ -211,3 +212,27 @@ def test_rk4_step_size_convergence() -> None:
     dv = max(abs(a - b) for a, b in zip(xa[3:6], xb[3:6], strict=True))
     dq = max(abs(a - b) for a, b in zip(xa[6:10], xb[6:10], strict=True))
     assert dv < 1e-6 and dq < 1e-6
+
+
+@pytest.mark.parametrize(
+    "opt",
+    [ModelOptions(), ModelOptions(rotors=False), ModelOptions(aerodynamics=False, gravity=False)],
+)
+def test_fused_stepper_equals_rk4_of_the_derivative(opt: ModelOptions) -> None:
+    f = make_derivative(P, opt)
+    step = make_stepper(P, opt)
+    x = initial_state(
+        (1, 2, -3),
+        (2.0, -1.0, 0.5),
+        (0.3, -0.2, 1.0),
+        (0.4, -0.3, 0.2),
+        rotor_radps=(180.0, 210.0),
+        swash_rad=(0.05, -0.1),
+    )
+    u = [400.0, 150.0, 0.5, -0.1]  # includes commands beyond the limits (clipped)
+    wind = (1.0, -2.0, 0.3)
+    for _ in range(20):
+        a = rk4_step(f, x, u, wind, 1e-3)
+        b = step(x, u, wind, 1e-3)
+        assert a == b  # same operations in the same order: bit-identical
+        x = b
