@@ -1,0 +1,421 @@
+"""The one place that opens links, sessions and recordings and wires ingest -> estimation -> sinks.
+
+In-process API (used by the commands, the demo, the benchmarks and the tests):
+
+- :class:`Service` ``(config, sinks)``: ``feed_bytes(link_id, data, t_arrival_s)`` and
+  ``feed_message(msg, t_arrival_s)`` push input through the pipeline; ``run(links,
+  stop_event)`` serves open links until the event is set; ``summary()`` gives a
+  :class:`ServiceSummary`; ``close()`` closes every sink (flushing files).
+- :func:`replay_tlog` ``(path, config, sinks) -> ServiceSummary``: the same pipeline
+  over a recorded ``.tlog``, deterministic (the vehicle's clock drives estimation; host
+  time stamps of the log are used only for vehicle eviction).
+- :func:`open_sinks`: the sinks a configuration asks for (file, Zenoh, Rerun); the
+  Zenoh and Rerun modules are imported only when enabled.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import select
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from glmav_observer.config import ServiceConfig
+from glmav_observer.estimation.vehicle import VehicleEstimator
+from glmav_observer.ingest.framing import FrameCounters, FrameDecoder, iter_tlog, new_dialect
+from glmav_observer.ingest.links import Link
+from glmav_observer.ingest.pipeline import Ingest, NewVehicle, VehicleEvicted, VehicleReset
+from glmav_observer.ingest.rates import encode_rate_request
+from glmav_observer.ingest.samples import Sample
+from glmav_observer.publish.file_sink import FileSink
+from glmav_observer.publish.sink import Sink
+from glmav_observer.records import CONFIGS, Record
+
+logger = logging.getLogger(__name__)
+
+#: How often (host seconds) the live loop checks received rates against requested ones.
+RATE_CHECK_PERIOD_S = 1.0
+
+
+@dataclass
+class VehicleSummary:
+    """What one vehicle's estimation produced (for the demo table and replay's summary)."""
+
+    sysid: int
+    rmse_ned_mps: dict[str, tuple[float, float, float] | None]
+    max_abs_error_ned_mps: dict[str, tuple[float, float, float] | None]
+    truth_samples: int
+    faults: list[dict[str, Any]]
+    switches: list[dict[str, Any]]
+    counters: dict[str, int]
+    active_config: str
+
+
+@dataclass
+class ServiceSummary:
+    """Per vehicle results plus link and service counters."""
+
+    vehicles: dict[int, VehicleSummary]
+    link_counters: dict[str, dict[str, int]]
+    service_counters: dict[str, int]
+    records: int
+    messages: int
+
+    @property
+    def rejected_frames(self) -> int:
+        return sum(
+            c.get("bad_crc", 0) + c.get("bad_header", 0) + c.get("truncated", 0)
+            for c in self.link_counters.values()
+        )
+
+    def to_text(self) -> str:
+        """A short human summary (printed by ``replay`` and ``serve`` at exit)."""
+        lines = [
+            f"messages {self.messages}, records {self.records}, "
+            f"rejected frames {self.rejected_frames}"
+        ]
+        for name, c in self.link_counters.items():
+            lines.append(f"link {name}: " + ", ".join(f"{k}={v}" for k, v in c.items()))
+        if self.service_counters:
+            lines.append(
+                "service: " + ", ".join(f"{k}={v}" for k, v in self.service_counters.items())
+            )
+        for sysid, v in sorted(self.vehicles.items()):
+            lines.append(f"vehicle {sysid}: active={v.active_config}")
+            if v.truth_samples:
+                lines.append(f"  RMSE vs SIM_STATE (n, e, d) m/s over {v.truth_samples} samples:")
+                for cfg, r in v.rmse_ned_mps.items():
+                    if r is not None:
+                        lines.append(f"    {cfg:<7} {r[0]:8.4f} {r[1]:8.4f} {r[2]:8.4f}")
+            else:
+                lines.append("  no SIM_STATE truth: no RMSE")
+            for f in v.faults:
+                lines.append(f"  fault isolated: {f}")
+            for s in v.switches:
+                lines.append(f"  switch: {s}")
+            dropped = {
+                k: n
+                for k, n in v.counters.items()
+                if k
+                in (
+                    "late",
+                    "duplicate",
+                    "reordered",
+                    "time_backwards",
+                    "time_jump",
+                    "clock_reset",
+                    "nan_field",
+                    "imu_absent",
+                    "gap",
+                    "other_component",
+                )
+            }
+            lines.append(f"  samples dropped/flagged: {dropped or 'none'}")
+        return "\n".join(lines)
+
+
+class Service:
+    """The pipeline: bytes/messages -> ingest -> per-vehicle estimators -> sinks."""
+
+    def __init__(self, config: ServiceConfig, sinks: Sequence[Sink] = ()) -> None:
+        self.config = config
+        self.sinks: list[Sink] = list(sinks)
+        self.ingest = Ingest(config.ingest)
+        self.estimators: dict[int, VehicleEstimator] = {}
+        self._retired: dict[int, VehicleEstimator] = {}
+        self.decoders: dict[str, FrameDecoder] = {}
+        self.counters: collections.Counter[str] = collections.Counter()
+        self.records = 0
+        self.messages = 0
+        #: frames to send: (link id, bytes); the live loop writes them to its links
+        self.outbox: list[tuple[str, bytes]] = []
+        self._vehicle_link: dict[int, str] = {}
+        self._mav = new_dialect()
+        self._closed = False
+        self.on_records: Callable[[list[Record]], None] | None = None
+        self._first_requests: list[int] = []
+
+    # ------------------------------------------------------------------ input
+    def decoder(self, link_id: str, *, datagram: bool = True) -> FrameDecoder:
+        dec = self.decoders.get(link_id)
+        if dec is None:
+            dec = self.decoders[link_id] = FrameDecoder(datagram=datagram)
+        return dec
+
+    def feed_bytes(
+        self, link_id: str, data: bytes, t_arrival_s: float, *, datagram: bool = True
+    ) -> int:
+        """Bytes received on ``link_id`` (one datagram, or a chunk of a stream)."""
+        n = 0
+        for msg in self.decoder(link_id, datagram=datagram).feed(data):
+            n += self.feed_message(msg, t_arrival_s, link_id)
+        return n
+
+    def feed_message(self, msg: Any, t_arrival_s: float, link_id: str = "") -> int:
+        """One decoded message; returns the number of records produced."""
+        self.messages += 1
+        events = self.ingest.on_message(msg, t_arrival_s)
+        if not events:
+            return 0
+        out: list[Record] = []
+        for ev in events:
+            if isinstance(ev, NewVehicle):
+                self._new_estimator(ev.sysid, link_id)
+                continue
+            if isinstance(ev, VehicleEvicted):
+                est = self.estimators.pop(ev.sysid, None)
+                if est is not None:
+                    self._retired[ev.sysid] = est
+                continue
+            if isinstance(ev, VehicleReset):
+                self.estimators[ev.sysid].restart("clock_reset")
+                continue
+            self._vehicle_link[ev.sysid] = link_id
+            out.extend(self._estimate(ev))
+        if out:
+            self._publish(out)
+        return len(out)
+
+    def _new_estimator(self, sysid: int, link_id: str) -> None:
+        v = self.ingest.vehicles[sysid]
+        old = self._retired.pop(sysid, None)
+        est = VehicleEstimator(sysid, self.config.estimation, v.counters, v.rates.rates)
+        if old is not None:  # a vehicle seen again after eviction keeps its history
+            est.faults, est.switches, est.errors = old.faults, old.switches, old.errors
+        self.estimators[sysid] = est
+        self._vehicle_link[sysid] = link_id
+        self._first_requests.append(sysid)
+
+    def _estimate(self, s: Sample) -> list[Record]:
+        return self.estimators[s.sysid].on_sample(s)
+
+    def _publish(self, records: list[Record]) -> None:
+        self.records += len(records)
+        for sink in self.sinks:
+            for r in records:
+                sink.write(r)
+        if self.on_records is not None:
+            self.on_records(records)
+
+    # ------------------------------------------------------------------ rates
+    def rate_requests(self) -> None:
+        """Queue SET_MESSAGE_INTERVAL for new vehicles and for streams that fall short."""
+        if not self.config.request_rates:
+            self._first_requests.clear()
+            return
+        first = set(self._first_requests)
+        self._first_requests.clear()
+        for sysid in list(self.ingest.vehicles):
+            link = self._vehicle_link.get(sysid)
+            if link is None:
+                continue
+            reqs = self.ingest.rate_requests(sysid, first=sysid in first)
+            if reqs and sysid not in first:
+                self.counters["rate_rerequest"] += len(reqs)
+                logger.info(
+                    "rates short: requested again",
+                    extra={"sysid": sysid, "messages": [r.message for r in reqs]},
+                )
+            for r in reqs:
+                self.outbox.append((link, encode_rate_request(self._mav, r)))
+                self.counters["rate_requests_sent"] += 1
+
+    # ------------------------------------------------------------------ live loop
+    def run(
+        self,
+        links: dict[str, Link],
+        stop_event: threading.Event,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Serve ``links`` (id -> open link) until ``stop_event`` is set."""
+        by_fd = {lk.fileno(): (lid, lk) for lid, lk in links.items()}
+        next_rate_check = clock()
+        while not stop_event.is_set():
+            try:
+                ready, _, _ = select.select(list(by_fd), [], [], 0.05)
+            except InterruptedError:
+                continue
+            for fd in ready:
+                lid, lk = by_fd[fd]
+                while True:  # drain the socket
+                    data = lk.read()
+                    if not data:
+                        break
+                    self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
+                    if not lk.datagram:
+                        break
+            now = clock()
+            if self._first_requests or now >= next_rate_check:
+                self.rate_requests()
+                next_rate_check = now + RATE_CHECK_PERIOD_S
+            while self.outbox:
+                lid, frame = self.outbox.pop(0)
+                if lid in links:
+                    links[lid].write(frame)
+
+    # ------------------------------------------------------------------ results
+    def summary(self) -> ServiceSummary:
+        vehicles: dict[int, VehicleSummary] = {}
+        for sysid, est in sorted({**self._retired, **self.estimators}.items()):
+            vehicles[sysid] = VehicleSummary(
+                sysid=sysid,
+                rmse_ned_mps=est.rmse_ned_mps(),
+                max_abs_error_ned_mps={
+                    c: (tuple(st.max_abs) if st.n else None)  # type: ignore[misc]
+                    for c, st in est.errors.items()
+                },
+                truth_samples=est.errors["full"].n,
+                faults=[f.to_dict() for f in est.faults],
+                switches=[s.to_dict() for s in est.switches],
+                counters=dict(sorted(est.counters.items())),
+                active_config=est.active_config,
+            )
+        return ServiceSummary(
+            vehicles=vehicles,
+            link_counters={k: d.counters.as_dict() for k, d in sorted(self.decoders.items())},
+            service_counters=dict(sorted((self.counters + self.ingest.counters).items())),
+            records=self.records,
+            messages=self.messages,
+        )
+
+    def close(self) -> None:
+        """Close every sink once (files flushed)."""
+        if self._closed:
+            return
+        self._closed = True
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except Exception:
+                logger.exception("sink close failed", extra={"sink": type(sink).__name__})
+
+
+# ---------------------------------------------------------------------- replay
+def replay_tlog(
+    path: str | Path,
+    config: ServiceConfig,
+    sinks: Sequence[Sink] = (),
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> ServiceSummary:
+    """Run the pipeline over a ``.tlog`` (deterministic); sinks are closed at the end."""
+    data = Path(path).read_bytes()
+    service = Service(config, sinks)
+    counters = FrameCounters()
+    service.decoders[str(path)] = FrameDecoder(datagram=False, counters=counters)
+    n = len(data)
+    step = max(1, n // 200)
+    next_report = 0
+    try:
+        for rec in iter_tlog(data, counters):
+            service.feed_message(rec.msg, rec.t_host_us * 1e-6, str(path))
+            if progress is not None and rec.offset >= next_report:
+                progress(rec.offset, n)
+                next_report = rec.offset + step
+        if progress is not None:
+            progress(n, n)
+    finally:
+        service.close()
+    return service.summary()
+
+
+# ---------------------------------------------------------------------- sinks
+def open_sinks(
+    config: ServiceConfig,
+    *,
+    out: str | None = None,
+    zenoh_config: str | None = None,
+    zenoh_enabled: bool | None = None,
+    rerun_mode: str | None = None,
+    recording_name: str | None = None,
+) -> list[Sink]:
+    """The sinks asked for by the config and the command line (closed by the caller)."""
+    sinks: list[Sink] = []
+    try:
+        path = out if out is not None else config.out
+        if path:
+            sinks.append(FileSink(path))
+        z_on = config.zenoh.enabled if zenoh_enabled is None else zenoh_enabled
+        if z_on:
+            from glmav_observer.publish.zenoh_sink import open_zenoh_sink
+
+            zcfg = zenoh_config if zenoh_config is not None else (config.zenoh.config or None)
+            sinks.append(
+                open_zenoh_sink(
+                    zcfg,
+                    prefix=config.zenoh.prefix,
+                    decimation=config.zenoh.decimation,
+                    service_id=config.service_id,
+                    effective_config=config.effective(),
+                )
+            )
+        mode = rerun_mode if rerun_mode is not None else config.rerun.mode
+        if mode != "off":
+            from glmav_observer.publish.rerun_sink import open_rerun_sink
+
+            sinks.append(
+                open_rerun_sink(
+                    mode,
+                    decimation=config.rerun.decimation,
+                    serve_bind=config.rerun.serve_bind,
+                    recording_name=recording_name,
+                )
+            )
+    except BaseException:
+        for s in sinks:
+            s.close()
+        raise
+    return sinks
+
+
+# ---------------------------------------------------------------------- serve
+def serve(
+    config: ServiceConfig,
+    sinks: Sequence[Sink],
+    links: Iterable[str],
+    stop_event: threading.Event | None = None,
+) -> ServiceSummary:
+    """Open ``links``, serve until SIGINT/SIGTERM (or ``stop_event``), close everything."""
+    stop = stop_event if stop_event is not None else threading.Event()
+    opened: dict[str, Link] = {}
+    service = Service(config, sinks)
+    previous: dict[signal.Signals, Any] = {}
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        logger.info("stopping", extra={"signal": signal.Signals(signum).name})
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_signal)
+    try:
+        for conn in links:
+            opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
+            logger.info("link open", extra={"link": conn})
+        service.run(opened, stop)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for lk in opened.values():
+            lk.close()
+        service.close()
+    return service.summary()
+
+
+def rmse_table(summary: ServiceSummary, sysid: int) -> list[tuple[str, float, float, float]]:
+    """(config, n, e, d) RMSE rows for one vehicle (NaN where no truth)."""
+    v = summary.vehicles[sysid]
+    rows: list[tuple[str, float, float, float]] = []
+    for c in (*CONFIGS, "active"):
+        r = v.rmse_ned_mps.get(c) or (math.nan, math.nan, math.nan)
+        rows.append((c, r[0], r[1], r[2]))
+    return rows

@@ -1,0 +1,308 @@
+"""``configs/service.toml``: loading and validation of the service's settings.
+
+Every setting has a default (the values in ``configs/service.toml``, where each one is
+documented); a file overrides some of them. A bad file raises :class:`ConfigError`
+naming the file, the key (dotted) and the reason; the commands turn it into exit code 2.
+Unknown keys are errors too (a typo must not silently fall back to a default).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from glmav_observer.estimation.bank import DEFAULT_GAMMA
+from glmav_observer.estimation.fdi import FdiConfig
+from glmav_observer.estimation.vehicle import EstimatorConfig
+from glmav_observer.ingest.clock import ClockConfig
+from glmav_observer.ingest.convert import RawImuScale
+from glmav_observer.ingest.pipeline import IngestConfig
+from glmav_observer.ingest.rates import MESSAGE_IDS
+
+RERUN_MODES = ("off", "spawn", "serve")
+
+
+class ConfigError(ValueError):
+    """A bad configuration value: ``file``, ``key`` (dotted) and ``reason``."""
+
+    def __init__(self, file: str, key: str, reason: str) -> None:
+        super().__init__(f"{file}: {key}: {reason}")
+        self.file = file
+        self.key = key
+        self.reason = reason
+
+
+@dataclass(frozen=True, slots=True)
+class ZenohSettings:
+    enabled: bool = False
+    config: str = ""
+    prefix: str = "glmav"
+    decimation: Mapping[str, int] = field(
+        default_factory=lambda: {"velocity": 1, "active": 1, "health": 1}
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class RerunSettings:
+    mode: str = "off"
+    decimation: int = 1
+    serve_bind: str = "127.0.0.1"
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceConfig:
+    """Everything the service needs; build with :func:`load_config`."""
+
+    service_id: str = "glmav-observer"
+    links: tuple[str, ...] = ()
+    out: str = ""
+    udp_receive_buffer_bytes: int = 4 * 1024 * 1024
+    request_rates: bool = True
+    ingest: IngestConfig = field(default_factory=IngestConfig)
+    estimation: EstimatorConfig = field(default_factory=EstimatorConfig)
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    rerun: RerunSettings = field(default_factory=RerunSettings)
+    source: str = "<defaults>"
+
+    def effective(self) -> dict[str, Any]:
+        """The effective configuration as plain JSON-able data (served by the Zenoh sink)."""
+
+        def plain(x: Any) -> Any:
+            if dataclasses.is_dataclass(x) and not isinstance(x, type):
+                return {f.name: plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
+            if isinstance(x, Mapping):
+                return {str(k): plain(v) for k, v in x.items()}
+            if isinstance(x, tuple | list):
+                return [plain(v) for v in x]
+            return x
+
+        out: dict[str, Any] = plain(self)
+        return out
+
+
+# ---------------------------------------------------------------------- validation helpers
+Check = Callable[[Any], str | None]
+
+
+def _positive(x: Any) -> str | None:
+    return None if x > 0 else "must be > 0"
+
+
+def _non_negative(x: Any) -> str | None:
+    return None if x >= 0 else "must be >= 0"
+
+
+def _ratio(x: Any) -> str | None:
+    return None if 0 < x <= 1 else "must be in (0, 1]"
+
+
+class _Reader:
+    """Reads typed keys from one TOML table, tracking which keys were used."""
+
+    def __init__(self, file: str, table: Mapping[str, Any], prefix: str) -> None:
+        self.file = file
+        self.table = table
+        self.prefix = prefix
+        self.used: set[str] = set()
+
+    def key(self, name: str) -> str:
+        return f"{self.prefix}{name}"
+
+    def get(self, name: str, kind: type, default: Any, check: Check | None = None) -> Any:
+        self.used.add(name)
+        if name not in self.table:
+            return default
+        value = self.table[name]
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if kind is int and isinstance(value, bool):
+            raise ConfigError(self.file, self.key(name), f"expected an integer, got {value!r}")
+        if not isinstance(value, kind):
+            raise ConfigError(self.file, self.key(name), f"expected {kind.__name__}, got {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(self.file, self.key(name), f"must be finite, got {value!r}")
+        if check is not None:
+            reason = check(value)
+            if reason is not None:
+                raise ConfigError(self.file, self.key(name), f"{reason}, got {value!r}")
+        return value
+
+    def sub(self, name: str) -> _Reader:
+        self.used.add(name)
+        value = self.table.get(name, {})
+        if not isinstance(value, Mapping):
+            raise ConfigError(self.file, self.key(name), "expected a table")
+        return _Reader(self.file, value, f"{self.prefix}{name}.")
+
+    def done(self) -> None:
+        for k in self.table:
+            if k not in self.used:
+                raise ConfigError(self.file, self.key(k), "unknown key")
+
+
+def _fields_from(r: _Reader, default: Any, checks: Mapping[str, Check]) -> dict[str, Any]:
+    """Every int/float/bool field of a frozen dataclass, read from ``r`` with its default."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(default):
+        v = getattr(default, f.name)
+        if isinstance(v, bool):
+            out[f.name] = r.get(f.name, bool, v)
+        elif isinstance(v, int):
+            out[f.name] = r.get(f.name, int, v, checks.get(f.name, _positive))
+        elif isinstance(v, float):
+            out[f.name] = r.get(f.name, float, v, checks.get(f.name, _positive))
+    return out
+
+
+def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConfig:
+    """Validate a parsed TOML document (see ``configs/service.toml``)."""
+    root = _Reader(file, data, "")
+    # [service]
+    svc = root.sub("service")
+    service_id = svc.get("id", str, "glmav-observer", lambda s: None if s else "must not be empty")
+    links_raw = svc.get("links", list, [])
+    for i, link in enumerate(links_raw):
+        if not isinstance(link, str) or not link:
+            raise ConfigError(file, f"service.links[{i}]", "expected a connection string")
+    out = svc.get("out", str, "")
+    if out and not out.endswith((".csv", ".jsonl")):
+        raise ConfigError(file, "service.out", f"must end in .csv or .jsonl, got {out!r}")
+    rcvbuf = svc.get("udp_receive_buffer_bytes", int, 4 * 1024 * 1024, _positive)
+    svc.done()
+    # [ingest]
+    ing = root.sub("ingest")
+    base = IngestConfig()
+    max_vehicles = ing.get("max_vehicles", int, base.max_vehicles, _positive)
+    evict_idle_s = ing.get("evict_idle_s", float, base.evict_idle_s, _positive)
+    imu_fallback_s = ing.get("imu_fallback_s", float, base.imu_fallback_s, _positive)
+    clock = ClockConfig(**_fields_from(ing, ClockConfig(), {"latency_window_s": _non_negative}))
+    raw = ing.sub("raw_imu")
+    raw_default = RawImuScale(**_fields_from(raw, RawImuScale(), {}))
+    by_sysid: dict[int, RawImuScale] = {}
+    per = raw.sub("sysid")
+    for key in list(per.table):
+        try:
+            sysid = int(key)
+        except ValueError:
+            raise ConfigError(file, f"ingest.raw_imu.sysid.{key}", "not a system id") from None
+        if not 1 <= sysid <= 255:
+            raise ConfigError(file, f"ingest.raw_imu.sysid.{key}", "system id must be 1..255")
+        sub = per.sub(key)
+        by_sysid[sysid] = RawImuScale(**_fields_from(sub, raw_default, {}))
+        sub.done()
+    per.done()
+    raw.done()
+    ing.done()
+    # [rates]
+    rates = root.sub("rates")
+    request_rates = rates.get("request", bool, True)
+    window_s = rates.get("window_s", float, base.rate_window_s, _positive)
+    shortfall = rates.get("shortfall_ratio", float, base.rate_shortfall_ratio, _ratio)
+    retry_s = rates.get("retry_s", float, base.rate_retry_s, _positive)
+    hz_r = rates.sub("hz")
+    wanted: dict[str, float] = {}
+    for name in list(hz_r.table):
+        if name not in MESSAGE_IDS:
+            raise ConfigError(
+                file, f"rates.hz.{name}", f"unknown message (one of {sorted(MESSAGE_IDS)})"
+            )
+        wanted[name] = hz_r.get(name, float, 0.0, _non_negative)
+    hz_r.done()
+    rates.done()
+    ingest = IngestConfig(
+        max_vehicles=max_vehicles,
+        evict_idle_s=evict_idle_s,
+        imu_fallback_s=imu_fallback_s,
+        clock=clock,
+        raw_imu_default=raw_default,
+        raw_imu_by_sysid=by_sysid,
+        rates_hz={k: v for k, v in wanted.items() if v > 0},
+        rate_window_s=window_s,
+        rate_shortfall_ratio=shortfall,
+        rate_retry_s=retry_s,
+    )
+    # [estimation]
+    est = root.sub("estimation")
+    e_base = EstimatorConfig()
+    gamma = {c: est.get(f"gamma_{c}", float, g, _positive) for c, g in DEFAULT_GAMMA.items()}
+    e_form = est.get(
+        "e_form",
+        str,
+        "exact",
+        lambda s: None if s in ("exact", "small_angle") else "must be exact or small_angle",
+    )
+    est_fields = _fields_from(est, e_base, {"metrics_skip_s": _non_negative})
+    est.done()
+    # [fdi]
+    fdi_r = root.sub("fdi")
+    fdi = FdiConfig(
+        **_fields_from(
+            fdi_r,
+            FdiConfig(),
+            {"sigma_bias_mps2": _non_negative, "accel_noise_density": _non_negative},
+        )
+    )
+    if fdi.warmup_s < 1.0:
+        raise ConfigError(file, "fdi.warmup_s", "must be >= 1.0 (the bias fit needs 1 s)")
+    fdi_r.done()
+    estimation = EstimatorConfig(gamma=gamma, e_form=e_form, fdi=fdi, **est_fields)
+    # [zenoh]
+    zr = root.sub("zenoh")
+    dec_r = zr.sub("decimation")
+    zenoh = ZenohSettings(
+        enabled=zr.get("enabled", bool, False),
+        config=zr.get("config", str, ""),
+        prefix=zr.get("prefix", str, "glmav", lambda s: None if s else "must not be empty"),
+        decimation={
+            k: dec_r.get(k, int, 1, _non_negative) for k in ("velocity", "active", "health")
+        },
+    )
+    dec_r.done()
+    zr.done()
+    # [rerun]
+    rr = root.sub("rerun")
+    rerun = RerunSettings(
+        mode=rr.get("mode", str, "off", check_rerun_mode),
+        decimation=rr.get("decimation", int, 1, _positive),
+        serve_bind=rr.get("serve_bind", str, "127.0.0.1"),
+    )
+    rr.done()
+    root.done()
+    return ServiceConfig(
+        service_id=service_id,
+        links=tuple(links_raw),
+        out=out,
+        udp_receive_buffer_bytes=rcvbuf,
+        request_rates=request_rates,
+        ingest=ingest,
+        estimation=estimation,
+        zenoh=zenoh,
+        rerun=rerun,
+        source=file,
+    )
+
+
+def check_rerun_mode(mode: str) -> str | None:
+    """None if ``mode`` is a valid ``--rerun`` value, else the reason."""
+    if mode in RERUN_MODES or (mode.startswith(("save:", "connect:")) and len(mode) > 5):
+        return None
+    return "must be off, spawn, serve, save:PATH or connect:URL"
+
+
+def load_config(path: str | Path | None) -> ServiceConfig:
+    """Load and validate ``path`` (None: the defaults)."""
+    if path is None:
+        return parse_config({}, "<defaults>")
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(str(p), "-", "file not found") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(str(p), "-", f"not valid TOML: {err}") from None
+    return parse_config(data, str(p))
