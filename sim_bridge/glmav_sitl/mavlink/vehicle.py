@@ -23,7 +23,9 @@ Commands (COMMAND_LONG and COMMAND_INT addressed to our system or broadcast):
 SET_MESSAGE_INTERVAL (511), GET_MESSAGE_INTERVAL (510), REQUEST_MESSAGE (512, e.g.
 AUTOPILOT_VERSION 148), REQUEST_AUTOPILOT_CAPABILITIES (520) are ACCEPTED (or
 DENIED for a bad argument); every other command gets MAV_RESULT_UNSUPPORTED.
-Malformed bytes and unknown messages are counted and ignored.
+Malformed bytes and unknown messages are counted and ignored. With a signing key, outgoing
+packets are signed (MAVLink 2 signing, link id 0, timestamps from the sim clock) and
+incoming packets must carry a valid signature with that key.
 
 tlog: each message as an 8-byte big-endian microsecond timestamp followed by the
 packet, timestamps ``start_unix_s + t_sim`` so that a seeded run is reproducible.
@@ -130,6 +132,11 @@ class MavlinkVehicle:
     def _new_parser(self) -> Any:
         p = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=self.compid)
         p.robust_parsing = True
+        if self.signing_key is not None:
+            # signed link: only packets signed with our key are accepted (bad or missing
+            # signatures surface as BAD_DATA and are counted)
+            p.signing.secret_key = self.signing_key
+            p.signing.allow_unsigned_callback = None
         return p
 
     @staticmethod
@@ -176,7 +183,10 @@ class MavlinkVehicle:
         tr = sim.truth()
         t_us = sim.t_us
         t_ms = t_us // 1000
-        rate = 1e6 / self.interval_us[name] if self.interval_us.get(name, 0) > 0 else 0.0
+        iv = self.interval_us.get(name, 0)
+        if iv <= 0:  # a one-off (REQUEST_MESSAGE) of a disabled stream: its default rate's noise
+            iv = self.default_interval_us.get(name, 0)
+        rate = 1e6 / iv if iv > 0 else 0.0
 
         if name == "heartbeat":
             armed = tr.rotor_radps[0] > 1.0 or tr.rotor_radps[1] > 1.0

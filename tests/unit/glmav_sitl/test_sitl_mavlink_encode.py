@@ -180,3 +180,25 @@ def test_signed_stream_verifies_with_the_key() -> None:
         assert b[2] & 0x01  # incompat flag: signed
         msgs += rx.parse_buffer(b) or []
     assert len(msgs) == len(link.out) and rx.signing.goodsig_count == len(link.out)
+
+
+def test_signed_vehicle_answers_only_signed_commands() -> None:
+    key = bytes(range(1, 33))
+    _sim, v, link = _vehicle(signing_key=key)
+    link.inbox.append(_gcs_command(512, 148.0))  # unsigned: rejected, no answer
+    v.poll_inputs()
+    assert not link.out and v.stats.bad_input == 1
+    gcs = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    gcs.signing.secret_key = key
+    gcs.signing.sign_outgoing = True
+    gcs.signing.timestamp = 10**12
+    msg = mavlink2.MAVLink_command_long_message(7, 1, 512, 0, 148.0, 0, 0, 0, 0, 0, 0)
+    link.inbox.append(bytes(msg.pack(gcs)))
+    v.poll_inputs()
+    acks = [m for m in _decode(link.out) if m.get_type() == "COMMAND_ACK"]
+    assert [(a.command, a.result) for a in acks] == [(512, mavlink2.MAV_RESULT_ACCEPTED)]
+    gcs.signing.secret_key = bytes(32)  # wrong key: rejected
+    link.out.clear()
+    link.inbox.append(bytes(msg.pack(gcs)))
+    v.poll_inputs()
+    assert not link.out and v.stats.bad_input == 2
