@@ -239,10 +239,12 @@ def open_session(config: zenoh.Config, name: str) -> zenoh.Session:
         return zenoh.open(config)
     except zenoh.ZError as exc:
         mode = _get(config, "mode") or "peer"
+        where = f"mode {mode}, connect {_get(config, 'connect/endpoints')}"
+        listen = _get(config, "listen/endpoints")
+        if isinstance(listen, list):  # explicitly set (else the per-mode defaults)
+            where += f", listen {listen}"
         raise ZenohConfigError(
-            f"{name}: cannot open the Zenoh session (mode {mode}, "
-            f"connect {_get(config, 'connect/endpoints')}, "
-            f"listen {_get(config, 'listen/endpoints')}): {clean_zenoh_error(exc)}"
+            f"{name}: cannot open the Zenoh session ({where}): {clean_zenoh_error(exc)}"
         ) from exc
 
 
