@@ -348,7 +348,8 @@ class ZenohSink:
         kind, key, slot = route(self.prefix, record)
         sysid = record.sysid
         now = time.monotonic()
-        with self._lock:
+        every = self.decimation[kind]
+        with self._lock:  # write() may be called from several threads (one per link)
             slots = self._latest.get(sysid)
             if slots is None:
                 slots = self._latest[sysid] = {}
@@ -356,25 +357,27 @@ class ZenohSink:
             self._last_seen[sysid] = now
             if sysid not in self._vehicle_tokens:
                 self._declare_vehicle_token(sysid)
-        n = self._write_count.get(key, 0)
-        self._write_count[key] = n + 1
-        every = self.decimation[kind]
-        if every == 0 or n % every:
-            self.decimated[kind] += 1
-            return
-        publisher = self._publishers.get(key)
-        if publisher is None:
-            publisher = self._declare_publisher(key, kind)
-            if publisher is None:
+            n = self._write_count.get(key, 0)
+            self._write_count[key] = n + 1
+            if every == 0 or n % every:
+                self.decimated[kind] += 1
                 return
+            publisher = self._publishers.get(key)
+            if publisher is None:
+                publisher = self._declare_publisher(key, kind)
+                if publisher is None:
+                    return
+        # outside the lock: encoding and the hand-over to Zenoh (non-blocking, DROP)
         try:
             publisher.put(encode_payload(record))
         except self._zenoh.ZError as exc:
-            self.errors += 1
+            with self._lock:
+                self.errors += 1
             if self.errors == 1 or self.errors % 1000 == 0:
                 log.warning("zenoh put on %s failed (%d so far): %s", key, self.errors, exc)
             return
-        self.published[kind] += 1
+        with self._lock:
+            self.published[kind] += 1
 
     def _declare_publisher(self, key: str, kind: str) -> zenoh.Publisher | None:
         zenoh = self._zenoh
