@@ -25,6 +25,13 @@ from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
 
 RERUN_MODES = ("off", "spawn", "serve")
+#: Requested stream rates when ``[rates.hz]`` is absent (design.md's SITL rates).
+DEFAULT_RATES_HZ: dict[str, float] = {
+    "ATTITUDE": 100.0,
+    "HIGHRES_IMU": 250.0,
+    "LOCAL_POSITION_NED": 30.0,
+    "SIM_STATE": 50.0,
+}
 
 
 class ConfigError(ValueError):
@@ -204,8 +211,9 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     window_s = rates.get("window_s", float, base.rate_window_s, _positive)
     shortfall = rates.get("shortfall_ratio", float, base.rate_shortfall_ratio, _ratio)
     retry_s = rates.get("retry_s", float, base.rate_retry_s, _positive)
+    has_hz = "hz" in rates.table
     hz_r = rates.sub("hz")
-    wanted: dict[str, float] = {}
+    wanted: dict[str, float] = {} if has_hz else dict(DEFAULT_RATES_HZ)
     for name in list(hz_r.table):
         if name not in MESSAGE_IDS:
             raise ConfigError(

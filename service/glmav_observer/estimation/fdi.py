@@ -8,23 +8,26 @@ The residual of axis j
 ----------------------
 With consistent kinematics the earth-frame velocity obeys V̇ = E Γ (equations.md, "What
 careful analysis adds"; Γ = f + g_body, (9)), which does not involve the body velocity.
-So with A(t) = ∫ (E f + g e_d) dt (the IMU's earth-frame acceleration integrated, the
-same ZOH inputs as the bank),
+With the accelerometer reading f = f_true + b (b a body-frame bias, constant over a few
+seconds) and the integrals the vehicle keeps, A(t) = ∫ (E f + g e_d) dt and
+B(t) = ∫ E dt (3×3, the same ZOH inputs as the bank):
 
-    z_j(τ) = y_j(τ) − A_j(τ) = V_j(0) − b_j τ + n_j(τ)
+    z(τ) = y(τ) − A(τ) = V0 − B(τ) b + n(τ)
 
-is constant up to the earth-frame accelerometer bias b_j (a slope) and the measurement
-noise n_j. The predictor of y_j at t is built from *vetted* samples only, i.e. samples
-at least ``vet_delay_s`` old that passed every test while the axis was healthy:
+linear in θ = (V0, b). :class:`BiasFit` solves it by least squares over the *vetted*
+samples of the last ``bias_window_s`` (samples at least ``vet_delay_s`` old that passed
+every test while their axis was healthy; each gives one row, for its own axis). The
+body-frame b is observable from the earth-frame measurements as the vehicle turns or
+from three axes at once, so a turning vehicle does not bend the prediction (an
+earth-frame bias would rotate with the yaw). The predictor and residual of axis j are
 
-    ŷ_j(t) = z̄_j + A_j(t) − b̂_j (t − τ̄_j),      r_j(t) = y_j(t) − ŷ_j(t)
+    ŷ_j(t) = V0_j + A_j(t) − B_j(t) b̂,      r_j(t) = y_j(t) − ŷ_j(t)
 
-z̄_j, τ̄_j the mean over the last ``reference_window_s`` of vetted samples and b̂_j the
-least-squares slope of z_j over the last ``bias_window_s`` of vetted samples. The
-predictor is what the IMU and the configuration c_j that does not use axis j predict:
-c_j's lost axis is exactly this dead reckoning (a hand-over from the vetted estimate).
-Because the reference is ``vet_delay_s`` old, a fault isolated within that delay has
-not entered it, so r_j stays a clean residual and the predictor a clean hand-over.
+which is what the IMU and the configuration c_j that does not use axis j predict: c_j's
+lost axis is this dead reckoning. Because the reference is ``vet_delay_s`` old, a fault
+isolated within that delay has not entered it, so r_j stays clean and ŷ_j is a clean
+hand-over. While an axis is isolated its prediction is frozen at the fit of the moment
+of isolation, and b̂ stops being refitted (the other axes keep refitting their V0).
 
 Tests (each a named outcome, thresholds in :class:`FdiConfig`):
 
@@ -53,6 +56,8 @@ import statistics
 from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
+
+import numpy as np
 
 from glmav_observer.records import NED_AXES, AxisName, FaultEvent
 
@@ -83,7 +88,6 @@ class FdiConfig:
 
     sigma_meas_mps: float = 0.05
     vet_delay_s: float = 0.6
-    reference_window_s: float = 0.3
     bias_window_s: float = 4.0
     warmup_s: float = 1.5
     gate_sigma: float = 3.0
@@ -99,6 +103,7 @@ class FdiConfig:
     sigma_handover_mps: float = 0.03
     sigma_bias_mps2: float = 0.03
     accel_noise_density: float = 4e-3
+    min_imu_rate_hz: float = 50.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,70 +117,130 @@ class AxisVerdict:
 
 
 @dataclass
-class _Vetted:
-    t_s: float
-    z_mps: float
+class BiasFit:
+    """Least squares of z = V0 − B b over vetted rows (module docstring), shared by the axes."""
+
+    cfg: FdiConfig
+    #: rows (t, axis, z_j, B(t) flat 9): one per vetted sample
+    rows: deque[tuple[float, int, float, tuple[float, ...]]] = field(default_factory=deque)
+    v0_mps: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    bias_body_mps2: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    b_anchor: tuple[float, ...] = (0.0,) * 9
+    fitted: bool = False
+    frozen_bias: bool = False
+    #: the IMU is fast enough to predict the velocity (``min_imu_rate_hz``)
+    imu_ok: bool = True
+    _since_fit: int = 0
+
+    def add(self, t_s: float, axis: int, z_mps: float, b_int: tuple[float, ...]) -> None:
+        self.rows.append((t_s, axis, z_mps, b_int))
+        self._since_fit += 1
+
+    def prune_and_fit(self, t_s: float) -> None:
+        t_min = t_s - self.cfg.vet_delay_s - self.cfg.bias_window_s
+        rows = self.rows
+        while rows and rows[0][0] < t_min:
+            rows.popleft()
+        if self._since_fit >= 6 or (not self.fitted and self._since_fit > 0):
+            self._since_fit = 0
+            self._fit()
+
+    def span_s(self) -> float:
+        return self.rows[-1][0] - self.rows[0][0] if self.rows else 0.0
+
+    def _fit(self) -> None:
+        rows = self.rows
+        if len(rows) < 12 or self.span_s() < 1.0:
+            return
+        b0 = rows[0][3]
+        n = len(rows)
+        axes = np.fromiter((r[1] for r in rows), dtype=np.intp, count=n)
+        z = np.fromiter((r[2] for r in rows), dtype=np.float64, count=n)
+        Bfull = np.array([r[3] for r in rows]) - np.asarray(b0)  # (n, 9) B(τ) − B(τ0)
+        Bj = Bfull.reshape(n, 3, 3)[np.arange(n), axes]  # row j of B for each sample
+        present = [k for k in range(3) if np.any(axes == k)]
+        if self.frozen_bias or len(present) < 3:
+            # b held: V0_j = mean of z_j + B_j b over the window, per axis present
+            b = np.asarray(self.bias_body_mps2)
+            zc = z + Bj @ b
+            for k in present:
+                self.v0_mps[k] = float(zc[axes == k].mean())
+            self.b_anchor = tuple(b0)
+            return
+        X = np.zeros((n, 6))
+        X[np.arange(n), axes] = 1.0
+        X[:, 3:] = -Bj
+        theta, *_ = np.linalg.lstsq(X, z, rcond=None)
+        self.v0_mps = theta[:3].tolist()
+        self.bias_body_mps2 = theta[3:].tolist()
+        self.b_anchor = tuple(b0)
+        self.fitted = True
+
+    def params(self, axis: int) -> tuple[float, tuple[float, float, float], tuple[float, ...]]:
+        """(V0_j, b̂, B anchor) for predictions of axis ``axis``."""
+        b = self.bias_body_mps2
+        return self.v0_mps[axis], (b[0], b[1], b[2]), self.b_anchor
+
+
+def _predict(
+    params: tuple[float, tuple[float, float, float], tuple[float, ...]],
+    axis: int,
+    a_int_j: float,
+    b_int: tuple[float, ...],
+) -> float:
+    v0, b, b0 = params
+    k = 3 * axis
+    return (
+        v0
+        + a_int_j
+        - (b_int[k] - b0[k]) * b[0]
+        - (b_int[k + 1] - b0[k + 1]) * b[1]
+        - (b_int[k + 2] - b0[k + 2]) * b[2]
+    )
 
 
 @dataclass
 class AxisMonitor:
-    """FDI of one NED axis."""
+    """FDI of one NED axis (index 0 n, 1 e, 2 d); ``fit`` is shared by the three axes."""
 
     axis: AxisName
+    index: int
     cfg: FdiConfig
+    fit: BiasFit
     state: AxisState = AxisState.WARMUP
     fault: FaultEvent | None = None
-    bias_mps2: float = 0.0
-    _vetted: deque[_Vetted] = field(default_factory=deque)
-    _pending: deque[tuple[float, float, bool]] = field(default_factory=deque)
+    _pending: deque[tuple[float, float, bool, tuple[float, ...]]] = field(default_factory=deque)
     _resid: deque[float] = field(default_factory=deque)
     _last_y: float = math.nan
     _repeats: int = 0
     _nan_run: int = 0
     _fail_run: int = 0
-    _fail_kind: FaultKind | None = None
     _healthy_since_s: float | None = None
-    _t_first_s: float | None = None
     _t_isolated_s: float = 0.0
-    _ref: tuple[float, float] | None = None  # (z̄, τ̄) frozen while isolated
-    _ref_live: tuple[float, float] | None = None
-    _bias_fitted: bool = False
+    _t_last_vetted_s: float | None = None
+    _frozen: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
     _fault_level_mps: float = 0.0  # |median residual| when a bias fault was isolated
 
     # ------------------------------------------------------------------ reference
-    def reference(self) -> tuple[float, float] | None:
-        """(z̄, τ̄): the vetted mean of z = y − A and its mean time; None before warm-up."""
-        if self._ref is not None:
-            return self._ref
-        return self._ref_live
+    def armed(self) -> bool:
+        """Residual tests need a fit over ``warmup_s`` of vetted samples."""
+        if not self.fit.imu_ok:
+            return False
+        return self._frozen is not None or (
+            self.fit.fitted and self.fit.span_s() >= self.cfg.warmup_s
+        )
 
-    def _update_reference(self) -> None:
-        v = self._vetted
-        if not v or not self._armed():
-            self._ref_live = None
-            return
-        t_end = v[-1].t_s - self.cfg.reference_window_s
-        zs = [s.z_mps for s in v if s.t_s >= t_end]
-        ts = [s.t_s for s in v if s.t_s >= t_end]
-        self._ref_live = (math.fsum(zs) / len(zs), math.fsum(ts) / len(ts))
-
-    def _armed(self) -> bool:
-        """Tests need a vetted reference and a bias fit (``warmup_s`` of vetted samples)."""
-        v = self._vetted
-        return self._bias_fitted and bool(v) and v[-1].t_s - v[0].t_s >= self.cfg.warmup_s
-
-    def predict_mps(self, t_s: float, a_int_mps: float) -> float:
-        """ŷ_j(t): the dead-reckoned velocity of this axis from the vetted reference."""
-        ref = self.reference()
-        if ref is None:
+    def predict_mps(self, a_int_j: float, b_int: tuple[float, ...]) -> float:
+        """ŷ_j(t): the dead-reckoned velocity of this axis from the vetted fit (NaN unarmed)."""
+        if self._frozen is not None:
+            return _predict(self._frozen, self.index, a_int_j, b_int)
+        if not self.armed():
             return math.nan
-        z_bar, t_bar = ref
-        return z_bar + a_int_mps - self.bias_mps2 * (t_s - t_bar)
+        return _predict(self.fit.params(self.index), self.index, a_int_j, b_int)
 
     def sigma_dead_reckoning_mps(self, t_s: float) -> float:
-        """1σ of the prediction, growing with the time since the reference (bias, noise)."""
-        ref = self.reference()
-        age = 0.0 if ref is None else max(0.0, t_s - ref[1])
+        """1σ of the prediction, growing with the age of the newest vetted sample."""
+        age = 0.0 if self._t_last_vetted_s is None else max(0.0, t_s - self._t_last_vetted_s)
         c = self.cfg
         return math.sqrt(
             c.sigma_handover_mps**2
@@ -183,42 +248,17 @@ class AxisMonitor:
             + c.accel_noise_density**2 * age
         )
 
-    def _vet(self, t_s: float) -> None:
-        """Move pending samples older than the vetting delay into the reference.
-
-        While the axis is isolated the reference and b̂ are frozen (nothing is vetted).
-        """
-        if self._ref is not None:
+    def vet(self, t_s: float) -> None:
+        """Move pending samples older than the vetting delay into the shared fit."""
+        if self._frozen is not None:
             return
-        cfg = self.cfg
-        n_before = len(self._vetted)
-        while self._pending and self._pending[0][0] <= t_s - cfg.vet_delay_s:
-            tp, zp, clean = self._pending.popleft()
+        limit = t_s - self.cfg.vet_delay_s
+        pend = self._pending
+        while pend and pend[0][0] <= limit:
+            tp, zp, clean, bp = pend.popleft()
             if clean:
-                self._vetted.append(_Vetted(tp, zp))
-        changed = False
-        while self._vetted and self._vetted[0].t_s < t_s - cfg.vet_delay_s - cfg.bias_window_s:
-            self._vetted.popleft()
-            changed = True
-        if changed or len(self._vetted) // 8 != n_before // 8:
-            self._fit_bias()
-        self._update_reference()
-
-    def _fit_bias(self) -> None:
-        """b̂ = −slope of z over the vetted window (least squares), if it spans ≥ 1 s."""
-        v = self._vetted
-        if len(v) < 10 or v[-1].t_s - v[0].t_s < 1.0:
-            return
-        t0 = v[0].t_s
-        n = len(v)
-        st = math.fsum(s.t_s - t0 for s in v)
-        sz = math.fsum(s.z_mps for s in v)
-        stt = math.fsum((s.t_s - t0) ** 2 for s in v)
-        stz = math.fsum((s.t_s - t0) * s.z_mps for s in v)
-        den = n * stt - st * st
-        if den > 1e-12:
-            self.bias_mps2 = -(n * stz - st * sz) / den
-            self._bias_fitted = True
+                self.fit.add(tp, self.index, zp, bp)
+                self._t_last_vetted_s = tp
 
     # ------------------------------------------------------------------ tests
     def _ratios(self) -> tuple[float, float]:
@@ -239,12 +279,11 @@ class AxisMonitor:
             noise = statistics.median(d2) / nominal / cfg.noise_ratio_threshold
         return bias, noise
 
-    def update(self, t_s: float, y_mps: float, a_int_mps: float) -> AxisVerdict:
-        """One measurement of this axis at vehicle time ``t_s``; ``a_int_mps`` = A_j(t)."""
+    def update(
+        self, t_s: float, y_mps: float, a_int_mps: float, b_int: tuple[float, ...]
+    ) -> AxisVerdict:
+        """One measurement at vehicle time ``t_s``; ``a_int_mps`` = A_j(t), ``b_int`` = B(t)."""
         cfg = self.cfg
-        if self._t_first_s is None:
-            self._t_first_s = t_s
-        self._vet(t_s)
         # dropout
         if not math.isfinite(y_mps):
             self._nan_run += 1
@@ -259,7 +298,7 @@ class AxisMonitor:
         repeated = y_mps == self._last_y
         self._repeats = self._repeats + 1 if repeated else 0
         self._last_y = y_mps
-        pred = self.predict_mps(t_s, a_int_mps)
+        pred = self.predict_mps(a_int_mps, b_int)
         r = y_mps - pred
         if math.isfinite(r):
             self._resid.append(r)
@@ -291,7 +330,6 @@ class AxisMonitor:
             if failing:
                 kind = FaultKind.NOISE if noise_ratio > 1.0 else FaultKind.BIAS
                 self._fail_run += 1
-                self._fail_kind = kind
                 self.state = AxisState.SUSPECT
                 if self._fail_run >= cfg.k_isolate:
                     self._isolate(t_s, kind, onset_s=None)
@@ -299,16 +337,18 @@ class AxisMonitor:
             else:
                 self._fail_run = 0
                 self.state = AxisState.OK
-            self._pending.append((t_s, y_mps - a_int_mps, not gated and not failing))
+            self._pending.append((t_s, y_mps - a_int_mps, not gated and not failing, b_int))
             return AxisVerdict(not gated and not repeated, r, ratio, self.state)
         # warm-up: no reference yet
-        self._pending.append((t_s, y_mps - a_int_mps, not repeated))
+        self._pending.append((t_s, y_mps - a_int_mps, not repeated, b_int))
         return AxisVerdict(not repeated, math.nan, ratio, self.state)
 
     def _isolate(self, t_s: float, kind: FaultKind, onset_s: float | None) -> None:
         self.state = AxisState.FAULTY
         self.fault = FaultEvent(self.axis, kind.value, t_s, onset_s)
-        self._ref = self.reference()  # freeze the vetted reference: dead reckoning from here
+        # freeze the prediction: dead reckoning from the vetted fit of this moment
+        self._frozen = self.fit.params(self.index) if self.armed() else None
+        self.fit.frozen_bias = True
         rb = list(self._resid)[-self.cfg.bias_samples :]
         self._fault_level_mps = abs(statistics.median(rb)) if rb else 0.0
         self._pending.clear()  # samples since the onset never enter the reference
@@ -351,10 +391,13 @@ class AxisMonitor:
         if t_s - self._healthy_since_s >= cfg.recovery_s:
             self.state = AxisState.OK
             self.fault = None
-            self._ref = None  # the reference refreshes as samples after recovery are vetted
+            self._frozen = None  # the fit refreshes as samples after recovery are vetted
             self._resid.clear()
             return AxisVerdict(True, r, ratio, self.state)
         return AxisVerdict(False, r, ratio, self.state)
+
+    def predict_for_handover(self, a_int_mps: float, b_int: tuple[float, ...]) -> float:
+        return self.predict_mps(a_int_mps, b_int)
 
     def force_dropout(self, t_s: float) -> bool:
         """The measurement stream is missing: isolate as a dropout. True if newly isolated."""
@@ -369,23 +412,40 @@ class FaultDetector:
     """FDI of the three NED axes of one vehicle."""
 
     cfg: FdiConfig = field(default_factory=FdiConfig)
+    fit: BiasFit = field(init=False)
     axes: tuple[AxisMonitor, AxisMonitor, AxisMonitor] = field(init=False)
 
     def __post_init__(self) -> None:
+        self.fit = BiasFit(self.cfg)
         self.axes = (
-            AxisMonitor("n", self.cfg),
-            AxisMonitor("e", self.cfg),
-            AxisMonitor("d", self.cfg),
+            AxisMonitor("n", 0, self.cfg, self.fit),
+            AxisMonitor("e", 1, self.cfg, self.fit),
+            AxisMonitor("d", 2, self.cfg, self.fit),
         )
 
     def update(
-        self, t_s: float, y_ned_mps: tuple[float, float, float], a_int_mps: list[float]
+        self,
+        t_s: float,
+        y_ned_mps: tuple[float, float, float],
+        a_int_mps: list[float],
+        b_int: tuple[float, ...],
+        imu_rate_hz: float = math.inf,
     ) -> tuple[AxisVerdict, AxisVerdict, AxisVerdict]:
-        """One velocity measurement; the verdict per NED axis."""
+        """One velocity measurement; the verdict per NED axis.
+
+        Below ``min_imu_rate_hz`` the IMU cannot predict the velocity (a ZOH of the
+        specific force over > 20 ms misses the vehicle's accelerations): the residual
+        tests are off and only dropout and freeze are tested.
+        """
+        self.fit.imu_ok = imu_rate_hz >= self.cfg.min_imu_rate_hz
+        for ax in self.axes:
+            ax.vet(t_s)
+        self.fit.frozen_bias = any(ax.fault is not None for ax in self.axes)
+        self.fit.prune_and_fit(t_s)
         return (
-            self.axes[0].update(t_s, y_ned_mps[0], a_int_mps[0]),
-            self.axes[1].update(t_s, y_ned_mps[1], a_int_mps[1]),
-            self.axes[2].update(t_s, y_ned_mps[2], a_int_mps[2]),
+            self.axes[0].update(t_s, y_ned_mps[0], a_int_mps[0], b_int),
+            self.axes[1].update(t_s, y_ned_mps[1], a_int_mps[1], b_int),
+            self.axes[2].update(t_s, y_ned_mps[2], a_int_mps[2], b_int),
         )
 
     def faulty_axes(self) -> list[int]:
@@ -393,9 +453,9 @@ class FaultDetector:
         idx = [i for i, a in enumerate(self.axes) if a.fault is not None]
         return sorted(idx, key=lambda i: self.axes[i]._t_isolated_s)
 
-    def bias_ned_mps2(self) -> list[float]:
-        """b̂: the earth-frame accelerometer bias estimate per axis (m/s²)."""
-        return [a.bias_mps2 for a in self.axes]
+    def bias_body_mps2(self) -> list[float]:
+        """b̂: the body-frame (FRD) accelerometer bias estimate (m/s²), zero before the fit."""
+        return list(self.fit.bias_body_mps2)
 
     def states(self) -> dict[str, str]:
         return {ax: m.state.value for ax, m in zip(NED_AXES, self.axes, strict=True)}

@@ -180,8 +180,13 @@ class VehicleEstimator:
         self._E: list[float] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         self._y: list[float] = [math.nan] * 3
         self._t_y_s = 0.0
+        self._y_interval_s = 0.0
+        self._imu_interval_s = 0.0
+        self._t_imu_s: float | None = None
         self._a_int: list[float] = [0.0, 0.0, 0.0]
         self._a_int_at_y: list[float] = [0.0, 0.0, 0.0]
+        self._b_int: list[float] = [0.0] * 9
+        self._b_int_at_y: list[float] = [0.0] * 9
         self._use: list[bool] = [False, False, False]
         self._active = "full"
         self._lost_axis_idx: int | None = None
@@ -225,6 +230,11 @@ class VehicleEstimator:
             self._euler = s.euler_rad
             self._omega_att = s.omega_body_radps
         elif isinstance(s, ImuSample):
+            if self._t_imu_s is not None and t > self._t_imu_s:
+                dt_i = min(t - self._t_imu_s, self.cfg.max_gap_s)
+                k = 1.0 if self._imu_interval_s == 0.0 else 0.02
+                self._imu_interval_s += k * (dt_i - self._imu_interval_s)
+            self._t_imu_s = t
             self._f = s.f_body_mps2
             self._omega_imu = s.omega_body_radps
             if self.t_bank_s is not None:
@@ -243,17 +253,21 @@ class VehicleEstimator:
         assert self.t_bank_s is not None and self._euler is not None and self._f is not None
         dt = t - self.t_bank_s
         cfg = self.cfg
-        bias = self.fdi.bias_ned_mps2()
+        b = self.fdi.fit.bias_body_mps2
         y = self._y
         if cfg.propagate_held_measurement:
-            age = self.t_bank_s - self._t_y_s
-            y = [y[i] + (self._a_int[i] - self._a_int_at_y[i]) - bias[i] * age for i in range(3)]
+            # y(t) ≈ y(t_y) + ∫ E (f − b̂) + g e_d  (V̇ = E Γ)
+            dB = [self._b_int[k] - self._b_int_at_y[k] for k in range(9)]
+            y = [
+                y[i]
+                + (self._a_int[i] - self._a_int_at_y[i])
+                - (dB[3 * i] * b[0] + dB[3 * i + 1] * b[1] + dB[3 * i + 2] * b[2])
+                for i in range(3)
+            ]
         f = self._f
-        E_prev = self._E
         f_bank: Vec3 | list[float] = f
         if cfg.compensate_accel_bias:
-            fb = _et_times(E_prev, bias)
-            f_bank = [f[0] - fb[0], f[1] - fb[1], f[2] - fb[2]]
+            f_bank = [f[0] - b[0], f[1] - b[1], f[2] - b[2]]
         mask = self._mask()
         self.bank.step(dt, self._euler, self._omega(), f_bank, y, mask)
         E = self.bank.e_last.ravel().tolist()
@@ -262,6 +276,9 @@ class VehicleEstimator:
         a[2] += cfg.g_mps2
         for i in range(3):
             self._a_int[i] += a[i] * dt
+        bi = self._b_int
+        for k in range(9):
+            bi[k] += E[k] * dt  # B = ∫ E dt (fdi.BiasFit)
         self.t_bank_s = t
         self._latest_ned = None
 
@@ -305,10 +322,18 @@ class VehicleEstimator:
         if self.t_bank_s is None and not self._init_from(s):
             return
         faulty_before = set(self.fdi.faulty_axes())
-        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int)
+        imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
+        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, tuple(self._b_int), imu_hz)
+        if t > self._t_y_s:  # running mean of the measurement interval (time constant 20 samples)
+            dt_y = min(t - self._t_y_s, self.cfg.max_gap_s)
+            if self._y_interval_s == 0.0:
+                self._y_interval_s = dt_y  # the first interval seeds the mean
+            else:
+                self._y_interval_s += 0.05 * (dt_y - self._y_interval_s)
         self._y = list(s.v_ned_mps)
         self._t_y_s = t
         self._a_int_at_y = list(self._a_int)
+        self._b_int_at_y = list(self._b_int)
         self._use = [v.use for v in verdicts]
         self._last_residual = [v.residual_mps for v in verdicts]
         self._last_ratio = [v.test_ratio for v in verdicts]
@@ -318,7 +343,9 @@ class VehicleEstimator:
 
     def _check_missing(self, t: float) -> None:
         """No velocity measurement for ``missing_timeout_s``: a dropout of every axis."""
-        if self._missing or t - self._t_y_s <= self.cfg.fdi.missing_timeout_s:
+        # the timeout follows the stream's own rate (real vehicles send 1-5 Hz, unevenly)
+        timeout = max(self.cfg.fdi.missing_timeout_s, 3.5 * self._y_interval_s)
+        if self._missing or self._y_interval_s == 0.0 or t - self._t_y_s <= timeout:
             return
         self._missing = True
         self.counters["measurement_missing"] += 1
@@ -349,7 +376,7 @@ class VehicleEstimator:
             ax = self.fdi.axes[lost_idx]
             reason = f"{ax.fault.kind if ax.fault else 'fault'}_{NED_AXES[lost_idx]}"
             if self._active == "full":
-                pred = ax.predict_mps(t, self._a_int[lost_idx])
+                pred = ax.predict_mps(self._a_int[lost_idx], tuple(self._b_int))
                 if (
                     math.isfinite(pred)
                     and abs(pred - v0[lost_idx]) > self.cfg.handover_contamination_mps
