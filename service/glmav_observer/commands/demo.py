@@ -1,0 +1,333 @@
+"""``glmav-observer demo``: the embedded default, one command from install to estimates.
+
+It writes a scenario (a climbing turn with one injected velocity-sensor fault), starts the
+simulator (``glmav-sitl``, a subprocess: MAVLink over UDP loopback is the only contract
+between the two), runs the service in this process with an in-process Zenoh peer and a
+Rerun recording (a spawned viewer when one can be started, else ``demo.rrd``), and ends
+with a table: RMSE per configuration against the simulator's truth, the fault isolated
+and when, the switch, and where the recording is. No external server, no manual step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table
+from glmav_observer.config import ConfigError, ServiceConfig, load_config
+from glmav_observer.ingest.links import Link
+from glmav_observer.publish.sink import Sink
+
+logger = logging.getLogger(__name__)
+
+FAULT_KINDS = ("bias", "freeze", "dropout", "noise")
+#: Fault magnitude per kind: a 1 m/s bias step (above the 0.3 m/s the FDI must catch), a
+#: noise burst of 2 m/s (40x the nominal 0.05 m/s); freeze and dropout have none.
+FAULT_MAGNITUDE = {"bias": 1.0, "noise": 2.0, "freeze": 0.0, "dropout": 0.0}
+#: How long the service may stay silent after the simulator has finished before the demo
+#: stops it (host seconds): the loopback socket has drained by then.
+DRAIN_QUIET_S = 0.3
+DRAIN_MAX_S = 5.0
+
+
+@dataclass
+class DemoResult:
+    """What the demo measured (also what its table prints)."""
+
+    scenario_path: Path
+    fault_axis: str
+    fault_kind: str
+    fault_at_s: float
+    duration_s: float
+    sim_wall_s: float
+    summary: ServiceSummary
+    sysid: int
+    recording: str | None
+    zenoh_received: int
+    rows: list[tuple[str, float, float, float]] = field(default_factory=list)
+
+    @property
+    def first_isolation(self) -> dict[str, Any] | None:
+        faults = self.summary.vehicles[self.sysid].faults
+        hits = [f for f in faults if f["axis"] == self.fault_axis]
+        return hits[0] if hits else None
+
+    @property
+    def first_switch(self) -> dict[str, Any] | None:
+        switches = self.summary.vehicles[self.sysid].switches
+        return switches[0] if switches else None
+
+
+def scenario_toml(duration_s: float, fault_axis: str, fault_kind: str, fault_at_s: float) -> str:
+    """A climbing turn (3 m/s, 0.3 rad/s, climbing 0.5 m/s) with one velocity fault."""
+    return f"""name = "demo"
+description = "Climbing turn with a {fault_kind} fault on LOCAL_POSITION_NED v{fault_axis} from {fault_at_s:g} s (glmav-observer demo)"
+duration_s = {duration_s:g}
+
+[initial]
+position_ned_m = [0.0, 0.0, -10.0]
+
+[[setpoints]]
+t_s = 0.0
+kind = "hold"
+yaw_rad = 0.0
+
+[[setpoints]]
+t_s = 3.0
+kind = "turn"
+speed_mps = 3.0
+turn_rate_radps = 0.3
+climb_rate_mps = 0.5
+
+[[faults]]
+sensor = "velocity"
+axis = "{fault_axis}"
+kind = "{fault_kind}"
+t_start_s = {fault_at_s:g}
+t_end_s = {duration_s:g}
+magnitude = {FAULT_MAGNITUDE[fault_kind]:g}
+"""
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def _open_rerun(mode: str, rrd_path: str, config: ServiceConfig) -> Sink | None:
+    if mode == "off":
+        return None
+    from glmav_observer.publish.rerun_sink import open_rerun_sink
+
+    return open_rerun_sink(
+        mode,
+        decimation=config.rerun.decimation,
+        serve_bind=config.rerun.serve_bind,
+        recording_name="glmav-observer demo",
+        fallback_save_path=rrd_path,
+    )
+
+
+def run_demo(
+    *,
+    duration_s: float = 25.0,
+    fault_axis: str = "e",
+    fault_kind: str = "bias",
+    fault_at_s: float = 12.0,
+    speed: str = "auto",
+    seed: int = 1,
+    rerun_mode: str = "spawn",
+    rrd_path: str = "demo.rrd",
+    zenoh: bool = True,
+    config: ServiceConfig | None = None,
+    workdir: Path | None = None,
+) -> DemoResult:
+    """Fly the demo scenario through the simulator and the service; return what was measured.
+
+    ``speed``: ``auto`` (real time when a live viewer is attached, else as fast as
+    possible), ``realtime``, ``max`` or a factor, passed to ``glmav-sitl run --speed``.
+    """
+    if fault_axis not in ("n", "e", "d"):
+        raise ValueError(f"fault axis must be n, e or d, got {fault_axis!r}")
+    if fault_kind not in FAULT_KINDS:
+        raise ValueError(f"fault kind must be one of {FAULT_KINDS}, got {fault_kind!r}")
+    if not 0.0 < fault_at_s < duration_s:
+        raise ValueError(f"fault time {fault_at_s} s must lie inside (0, {duration_s}) s")
+    config = config if config is not None else load_config(None)
+    tmp = tempfile.TemporaryDirectory(prefix="glmav-demo-") if workdir is None else None
+    work = Path(tmp.name) if tmp is not None else Path(workdir)  # type: ignore[arg-type]
+    scenario = work / "demo.toml"
+    scenario.write_text(scenario_toml(duration_s, fault_axis, fault_kind, fault_at_s), "utf-8")
+
+    sinks: list[Sink] = []
+    received = [0]
+    subscriber: Any = None
+    link: Link | None = None
+    service: Service | None = None
+    try:
+        if zenoh:
+            sinks += open_sinks(config, zenoh_enabled=True, rerun_mode="off")
+            # a subscriber on the sink's own session: proof that records leave on Zenoh
+            session = sinks[-1].session  # type: ignore[attr-defined]
+
+            def count(_sample: Any) -> None:
+                received[0] += 1
+
+            prefix = config.zenoh.prefix
+            subscriber = session.declare_subscriber(f"{prefix}/*/velocity/**", count)
+        rerun_sink = _open_rerun(rerun_mode, rrd_path, config)
+        recording: str | None = None
+        live_viewer = False
+        if rerun_sink is not None:
+            sinks.append(rerun_sink)
+            recording = rerun_sink.effective_mode  # type: ignore[attr-defined]
+            live_viewer = not recording.startswith("save:")
+        sim_speed = ("realtime" if live_viewer else "max") if speed == "auto" else speed
+
+        port = _free_udp_port()
+        conn = f"udpin:127.0.0.1:{port}"
+        link = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
+        service = Service(config, sinks)
+        stop = threading.Event()
+        worker = threading.Thread(
+            target=service.run, args=({conn: link}, stop), name="demo-service", daemon=True
+        )
+        worker.start()
+        cmd = [
+            sys.executable, "-m", "glmav_sitl.cli", "run",
+            "--scenario", str(scenario), "--duration", f"{duration_s:g}",
+            "--speed", sim_speed, "--seed", str(seed),
+            "--link", f"udpout:127.0.0.1:{port}",
+        ]  # fmt: skip
+        logger.info("starting simulator", extra={"cmd": " ".join(cmd)})
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        sim_wall_s = time.perf_counter() - t0
+        if proc.returncode != 0:
+            raise RuntimeError(f"simulator failed ({proc.returncode}): {proc.stderr.strip()}")
+        # drain: wait until the service has been quiet for DRAIN_QUIET_S
+        last, quiet_since, deadline = -1, time.monotonic(), time.monotonic() + DRAIN_MAX_S
+        while time.monotonic() < deadline:
+            if service.messages != last:
+                last, quiet_since = service.messages, time.monotonic()
+            elif time.monotonic() - quiet_since >= DRAIN_QUIET_S:
+                break
+            stop.wait(0.05)
+        stop.set()
+        worker.join(timeout=5.0)
+    finally:
+        if subscriber is not None:
+            subscriber.undeclare()
+        if link is not None:
+            link.close()
+        if service is not None:
+            service.close()
+        else:
+            for s in sinks:
+                s.close()
+        if tmp is not None:
+            tmp.cleanup()
+    summary = service.summary()
+    if not summary.vehicles:
+        raise RuntimeError("the service saw no vehicle: no MAVLink arrived on " + conn)
+    sysid = min(summary.vehicles)
+    return DemoResult(
+        scenario_path=scenario,
+        fault_axis=fault_axis,
+        fault_kind=fault_kind,
+        fault_at_s=fault_at_s,
+        duration_s=duration_s,
+        sim_wall_s=sim_wall_s,
+        summary=summary,
+        sysid=sysid,
+        recording=recording,
+        zenoh_received=received[0],
+        rows=rmse_table(summary, sysid),
+    )
+
+
+def format_result(r: DemoResult) -> str:
+    """The table the demo ends with."""
+    v = r.summary.vehicles[r.sysid]
+    out = [
+        f"glmav-observer demo: climbing turn, {r.fault_kind} fault on measured v{r.fault_axis} "
+        f"from t = {r.fault_at_s:g} s, {r.duration_s:g} s simulated in {r.sim_wall_s:.1f} s",
+        f"MAVLink over UDP loopback: {r.summary.messages} messages, "
+        f"{r.summary.rejected_frames} rejected; {r.summary.records} records; "
+        f"Zenoh: {r.zenoh_received} velocity records received by a local subscriber",
+        "",
+        "RMSE against truth (SIM_STATE), m/s, NED",
+        f"{'config':<8}{'north':>9}{'east':>9}{'down':>9}",
+    ]
+    for cfg, n, e, d in r.rows:
+        out.append(f"{cfg:<8}{n:9.3f}{e:9.3f}{d:9.3f}")
+    out.append("")
+    iso = r.first_isolation
+    if iso is not None:
+        delay = iso["t_detect_s"] - r.fault_at_s
+        out.append(
+            f"fault isolated: axis {iso['axis']} ({iso['kind']}) at t = {iso['t_detect_s']:.3f} s,"
+            f" {delay:.3f} s after onset"
+        )
+    else:
+        out.append(f"fault NOT isolated on axis {r.fault_axis}")
+    others = [f for f in v.faults if f is not iso]
+    for f in others:
+        out.append(f"also isolated: axis {f['axis']} ({f['kind']}) at t = {f['t_detect_s']:.3f} s")
+    sw = r.first_switch
+    if sw is not None:
+        out.append(
+            f"switch: {sw['from']} -> {sw['to']} at t = {sw['t_boot_s']:.3f} s, "
+            f"jump {sw['jump_mps']:.3f} m/s; active at the end: {v.active_config}"
+        )
+    if r.recording is None:
+        out.append("recording: none (--rerun off)")
+    elif r.recording.startswith("save:"):
+        path = r.recording.removeprefix("save:")
+        out.append(f"recording: {path}  (open it with: rerun {path})")
+    else:
+        out.append(f"recording: streamed to the Rerun viewer ({r.recording})")
+    return "\n".join(out)
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="simulator + service + Zenoh + Rerun on loopback, with an injected fault",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--duration", type=float, default=25.0, help="simulated seconds (25)")
+    p.add_argument("--fault-axis", choices=("n", "e", "d"), default="e")
+    p.add_argument("--fault-kind", choices=FAULT_KINDS, default="bias")
+    p.add_argument("--fault-at", type=float, default=12.0, help="fault onset, s (12)")
+    p.add_argument(
+        "--speed",
+        default="auto",
+        help="auto (real time with a live viewer, else max), realtime, max or a factor",
+    )
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument(
+        "--rerun",
+        default="spawn",
+        help="spawn (falls back to save:--rrd without a display), save:PATH, serve, off",
+    )
+    p.add_argument("--rrd", default="demo.rrd", help="where to save when no viewer starts")
+    p.add_argument("--no-zenoh", action="store_true", help="do not open the Zenoh peer")
+    p.add_argument("--config", default=None, help="service TOML (default: built-in settings)")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        config = load_config(args.config)
+        result = run_demo(
+            duration_s=args.duration,
+            fault_axis=args.fault_axis,
+            fault_kind=args.fault_kind,
+            fault_at_s=args.fault_at,
+            speed=args.speed,
+            seed=args.seed,
+            rerun_mode=args.rerun,
+            rrd_path=args.rrd,
+            zenoh=not args.no_zenoh,
+            config=config,
+        )
+    except (ConfigError, ValueError, RuntimeError) as err:
+        print(f"glmav-observer demo: {err}", file=sys.stderr)
+        return 2
+    print(format_result(result))
+    iso = result.first_isolation
+    return 0 if iso is not None and not math.isnan(result.rows[-1][1]) else 1
