@@ -90,6 +90,7 @@ class FrameDecoder:
         self._mav = new_dialect()
         self._buf = bytearray()
         self._datagram = datagram
+        self._quiet = 0
         self.counters = counters if counters is not None else FrameCounters()
 
     def _try_decode(self, frame: bytearray) -> tuple[MavMessage | None, str | None]:
@@ -117,17 +118,27 @@ class FrameDecoder:
         p = 0
         n = len(buf)
         counters = self.counters
+        # A rejected candidate with intact boundaries (a magic byte right after it) is
+        # counted once; its inner bytes are still scanned (a valid frame may sit inside a
+        # span claimed by a corrupt length) but not counted again up to ``quiet``.
+        quiet = self._quiet
         while p < n:
             b = buf[p]
             if b not in (MAGIC_V2, MAGIC_V1):
                 q1 = buf.find(MAGIC_V2, p)
                 q2 = buf.find(MAGIC_V1, p)
                 q = min(x for x in (q1, q2, n) if x >= 0)
-                counters.add("garbage_bytes", q - p)
+                if q > quiet:
+                    counters.add("garbage_bytes", q - max(p, quiet))
                 p = q
                 continue
             length = _frame_length(buf, p, n)
             if length is None or p + length > n:
+                if self._datagram:  # nothing more will come: not a frame start, resync
+                    if p >= quiet:
+                        counters.add("truncated")
+                    p += 1
+                    continue
                 break  # incomplete
             msg, reason = self._try_decode(buf[p : p + length])
             if msg is not None:
@@ -136,21 +147,19 @@ class FrameDecoder:
                 p += length
                 continue
             assert reason is not None
-            counters.add(reason)
-            if (
-                reason == "unknown_message"
-                or (p + length < n and buf[p + length] in (MAGIC_V1, MAGIC_V2))
-                or (p + length == n and self._datagram)
-            ):
-                p += length  # intact frame boundaries: skip the whole frame
-            else:
-                p += 1  # corrupt length: resync on the next magic byte
+            if p >= quiet:
+                counters.add(reason)
+                if (p + length < n and buf[p + length] in (MAGIC_V1, MAGIC_V2)) or (
+                    p + length == n and self._datagram
+                ):
+                    quiet = p + length  # intact frame boundaries: one rejected frame
+            p += 1  # resync on the next magic byte
         if self._datagram:
-            if p < n:
-                counters.add("truncated")
             self._buf = bytearray()
+            self._quiet = 0
         else:
             del buf[:p]
+            self._quiet = max(0, quiet - p)
         return out
 
 
