@@ -76,6 +76,8 @@ class VehicleClock:
     def to_boot_s(self, t_us: int, kind: TimeKind) -> float | None:
         """Vehicle boot time of a raw stamp; None if it cannot be mapped yet (counted)."""
         if kind is TimeKind.NONE:
+            if self.t_now_s is None:
+                self.counters["untimed_before_clock"] += 1  # SIM_STATE before any stamp
             return self.t_now_s
         if kind is TimeKind.USEC and t_us > EPOCH_THRESHOLD_US:
             self.counters["epoch_time_samples"] += 1
