@@ -83,7 +83,15 @@ def _finite3(values: tuple[float, float, float], what: str) -> Vec3:
     return (x, y, z)
 
 
+#: Beyond any IMU's range (high-g MEMS accelerometers: ±200 g; gyros: ±4000 °/s): a value
+#: above these is corruption, not a measurement, and one would poison the estimate.
+IMU_MAX_F_MPS2 = 2000.0
+IMU_MAX_OMEGA_RADPS = 70.0
+
+
 def _imu_vectors(f: Vec3, w: Vec3, name: str) -> tuple[Vec3, Vec3]:
+    if max(abs(x) for x in f) > IMU_MAX_F_MPS2 or max(abs(x) for x in w) > IMU_MAX_OMEGA_RADPS:
+        raise ConversionError("implausible", f"{name} beyond any IMU range: f={f} w={w}")
     if f == (0.0, 0.0, 0.0):
         # an accelerometer never reads exactly zero on a vehicle in gravity: absent sensor
         raise ConversionError("imu_absent", f"{name} specific force is exactly zero")
