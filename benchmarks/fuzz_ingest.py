@@ -1,0 +1,307 @@
+"""Fuzzing the ingest path: a million damaged inputs, zero crashes, every rejection counted.
+
+The input path of the service (framing -> ingest -> one estimator per vehicle) gets the
+simulator's valid MAVLink stream (vehicle 1, 6 s of the ``cruise`` scenario, one frame
+per datagram as on UDP) with three damaged datagrams after every valid one
+(``tests/support/fuzzgen.py``: random bytes, truncated and spliced frames, wrong CRCs,
+bad flags, unknown ids, NaN/inf/extreme values, time jumps, system and component id
+storms, MAVLink 1 mixes, slices of the real corrupt ArduSub log). Sessions alternate:
+
+- *vehicle-safe*: no damaged frame that passes the CRC carries the vehicle's ids (or
+  its stamps are corrupt far beyond the forward window); the vehicle's velocity records
+  must then be **identical** to those of the clean stream;
+- *chaos*: anything goes, on the vehicle too; only no crash and full accounting.
+
+Every decoded message must end as a sample, a consumed ``SYSTEM_TIME`` or a rejection
+with a counted reason (``unaccounted`` must stay 0); numpy RuntimeWarnings count as
+crashes. With ``atheris`` installed, a coverage-guided run (libFuzzer) over the same
+path is added (subprocess: ``python -m benchmarks.fuzz_ingest --atheris -runs=N``).
+
+    python -m benchmarks.fuzz_ingest            # 1,000,000 cases (record)
+    python -m benchmarks.fuzz_ingest --quick    # 20,000 cases
+"""
+
+from __future__ import annotations
+
+import collections
+import re
+import subprocess
+import sys
+import time
+import traceback
+import warnings
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT / "tests") not in sys.path:
+    sys.path.insert(0, str(ROOT / "tests"))
+
+from benchmarks.common import format_table, goal, main_for  # noqa: E402
+from support.fuzzgen import (  # noqa: E402
+    VEHICLE_SYSID,
+    CaseMaker,
+    ValidStream,
+    load_corrupt_log,
+    sitl_stream,
+)
+from support.ingest_harness import Harness, velocity_series  # noqa: E402
+
+REAL_TLOGS = ROOT.parent / "shared" / "data" / "real-tlogs"
+CASES_PER_FRAME = 3
+DOC = ROOT / "docs" / "benchmarks" / "fuzz_ingest.md"
+
+
+def run_session(
+    stream: ValidStream,
+    clean_series: list[Any],
+    corrupt: bytes,
+    seed: int,
+    *,
+    vehicle_safe: bool,
+    datagram: bool = True,
+) -> dict[str, Any]:
+    """One pass of the valid stream with damaged cases interleaved; what came out."""
+    h = Harness(datagram=datagram)
+    cm = CaseMaker(stream.frames, corrupt, seed, vehicle_safe=vehicle_safe)
+    kinds: collections.Counter[str] = collections.Counter()
+    crashes: list[str] = []
+    n_crash = 0
+    t_host = 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        for frame in stream.frames:
+            t_host += 0.001
+            h.feed(frame, t_host)
+            v = h.ingest.vehicles.get(VEHICLE_SYSID)
+            if v is not None and v.clock.t_now_s is not None:
+                cm.t_ms = int(v.clock.t_now_s * 1000)
+            for _ in range(CASES_PER_FRAME):
+                kind, data = cm.make()
+                kinds[kind] += 1
+                try:
+                    h.feed(data, t_host)
+                except Exception:  # a crash is the finding: count it, keep fuzzing
+                    n_crash += 1
+                    if len(crashes) < 3:
+                        crashes.append(f"{kind} {data.hex()}\n{traceback.format_exc(limit=4)}")
+                    h.decoder = type(h.decoder)(datagram=datagram, counters=h.frame_counters)
+    same = velocity_series(h.records.get(VEHICLE_SYSID, [])) == clean_series
+    return {
+        "cases": sum(kinds.values()),
+        "kinds": dict(kinds),
+        "crashes": n_crash,
+        "crash_examples": crashes,
+        "outcomes": dict(h.outcomes),
+        "counts": h.counts(),
+        "same_estimates": same,
+        "nonfinite_velocity_records": h.nonfinite_velocity_records,
+        "max_vehicles": h.max_vehicles_seen,
+        "cap": h.ingest_config.max_vehicles,
+    }
+
+
+def run_atheris(runs: int, timeout_s: float = 600.0) -> dict[str, Any]:
+    """The coverage-guided run in a subprocess (libFuzzer exits the process when done)."""
+    try:
+        import atheris  # noqa: F401
+    except ImportError:
+        return {"available": False}
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.fuzz_ingest", "--atheris", f"-runs={runs}", "-seed=1"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        check=False,
+    )
+    wall = time.perf_counter() - t0
+    m = re.search(r"Done (\d+) runs in (\d+) second", proc.stderr)
+    cov = re.findall(r"cov: (\d+)", proc.stderr)
+    return {
+        "available": True,
+        "returncode": proc.returncode,
+        "runs": int(m.group(1)) if m else 0,
+        "wall_s": wall,
+        "coverage_edges": int(cov[-1]) if cov else 0,
+        "tail": proc.stderr[-600:] if proc.returncode != 0 else "",
+    }
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    n_target = 20_000 if quick else 1_000_000
+    stream = sitl_stream("cruise", 6.0, seed=1)
+    clean = Harness()
+    clean.feed_all(stream.frames)
+    clean_series = velocity_series(clean.records[VEHICLE_SYSID])
+    corrupt = load_corrupt_log(REAL_TLOGS)
+    totals: collections.Counter[str] = collections.Counter()
+    kinds: collections.Counter[str] = collections.Counter()
+    outcomes: collections.Counter[str] = collections.Counter()
+    sessions = {"safe": 0, "safe_same": 0, "chaos": 0}
+    crashes = 0
+    examples: list[str] = []
+    nonfinite = {"safe": 0, "chaos": 0}
+    max_vehicles = 0
+    cap = 0
+    n = 0
+    seed = 0
+    t0 = time.perf_counter()
+    while n < n_target:
+        safe = seed % 2 == 0
+        r = run_session(stream, clean_series, corrupt, seed, vehicle_safe=safe)
+        seed += 1
+        n += r["cases"]
+        crashes += r["crashes"]
+        examples += r["crash_examples"][: max(0, 3 - len(examples))]
+        totals.update(r["counts"])
+        kinds.update(r["kinds"])
+        outcomes.update(r["outcomes"])
+        max_vehicles = max(max_vehicles, r["max_vehicles"])
+        cap = r["cap"]
+        key = "safe" if safe else "chaos"
+        sessions[key] += 1
+        nonfinite[key] += r["nonfinite_velocity_records"]
+        if safe and r["same_estimates"]:
+            sessions["safe_same"] += 1
+    wall = time.perf_counter() - t0
+    ath = run_atheris(20_000 if quick else 300_000)
+    rows = [{"reason": k, "count": v} for k, v in sorted(totals.items())]
+    goals = [
+        goal("cases run", float(n), float(n_target), higher_is_better=True),
+        goal("crashes (exceptions, numpy warnings)", float(crashes), 0.0, higher_is_better=False),
+        goal(
+            "messages without a counted outcome",
+            float(outcomes["unaccounted"]),
+            0.0,
+            higher_is_better=False,
+        ),
+        goal(
+            "vehicle-safe sessions with estimates identical to the clean run (fraction)",
+            sessions["safe_same"] / max(1, sessions["safe"]),
+            1.0,
+            higher_is_better=True,
+        ),
+        goal(
+            "admitted vehicles at most the cap",
+            float(max_vehicles),
+            float(cap),
+            higher_is_better=False,
+        ),
+    ]
+    if ath.get("available"):
+        goals.append(
+            goal(
+                "atheris: failing exit code",
+                float(ath["returncode"] != 0),
+                0.0,
+                higher_is_better=False,
+            )
+        )
+    return {
+        "name": "fuzz_ingest",
+        "quick": quick,
+        "cases": n,
+        "cases_per_s": n / wall,
+        "wall_s": wall,
+        "sessions": sessions,
+        "valid_frames_per_session": len(stream.frames),
+        "kinds": dict(sorted(kinds.items())),
+        "outcomes": dict(sorted(outcomes.items())),
+        "crashes": crashes,
+        "crash_examples": examples,
+        "nonfinite_velocity_records": nonfinite,
+        "max_vehicles": max_vehicles,
+        "atheris": ath,
+        "rows": rows,
+        "goals": goals,
+    }
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    from benchmarks.common import format_goals
+
+    s = result["sessions"]
+    ath = result["atheris"]
+    lines = [
+        "Command: `python -m benchmarks.fuzz_ingest`"
+        + (" --quick" if result["quick"] else "")
+        + f" — {result['cases']:,} damaged datagrams in {result['wall_s']:.0f} s "
+        f"({result['cases_per_s']:,.0f} cases/s, one core, framing + ingest + estimators).",
+        "",
+        f"Sessions: {s['safe']} vehicle-safe ({s['safe_same']} with the vehicle's velocity "
+        f"records identical to the clean run), {s['chaos']} chaos; "
+        f"{result['valid_frames_per_session']} valid frames and "
+        f"{CASES_PER_FRAME} damaged cases per valid frame in each.",
+        "",
+        format_goals(result["goals"]),
+        "",
+        "Cases by kind: " + ", ".join(f"{k} {v:,}" for k, v in result["kinds"].items()) + ".",
+        "",
+        "Outcome of every decoded message: "
+        + ", ".join(f"{k} {v:,}" for k, v in result["outcomes"].items())
+        + ".",
+        "",
+        "Non-finite velocity records: "
+        + ", ".join(f"{k} {v}" for k, v in result["nonfinite_velocity_records"].items())
+        + ".",
+        "",
+        "Rejections and events by reason (framing, ingest-wide, summed over the vehicles"
+        " admitted at the end of each session):",
+        "",
+        format_table(result["rows"]),
+        "",
+    ]
+    if ath.get("available"):
+        lines.append(
+            f"atheris (libFuzzer, coverage-guided, same path, datagram and stream framing): "
+            f"{ath['runs']:,} runs in {ath['wall_s']:.0f} s, exit code {ath['returncode']}, "
+            f"{ath['coverage_edges']} coverage edges."
+        )
+    else:
+        lines.append("atheris: not installed in this environment (hypothesis runs in CI).")
+    if result["crash_examples"]:
+        lines += ["", "First crashes:", "", "```", *result["crash_examples"], "```"]
+    return "\n".join(lines) + "\n"
+
+
+def _atheris_main(argv: list[str]) -> None:
+    import atheris
+
+    atheris.instrument_all()  # the service's modules are loaded already (imports above)
+    harnesses = [
+        Harness(datagram=True, keep_records=False),
+        Harness(datagram=False, keep_records=False),
+    ]
+    count = [0]
+
+    def one_input(data: bytes) -> None:
+        count[0] += 1
+        if count[0] % 20_000 == 0:  # bounded state between long runs
+            harnesses[:] = [
+                Harness(datagram=True, keep_records=False),
+                Harness(datagram=False, keep_records=False),
+            ]
+        for h in harnesses:
+            h.feed(data, count[0] * 0.001)
+
+    atheris.Setup([sys.argv[0], *argv], one_input)
+    atheris.Fuzz()
+
+
+if __name__ == "__main__":
+    if "--atheris" in sys.argv:
+        _atheris_main([a for a in sys.argv[1:] if a != "--atheris"])
+    else:
+        code = main_for(sys.modules[__name__])
+        res_path = ROOT / "benchmarks" / "results" / "fuzz_ingest.json"
+        if res_path.exists():
+            import json
+
+            DOC.parent.mkdir(parents=True, exist_ok=True)
+            DOC.write_text(
+                "# fuzz_ingest\n\n" + to_markdown(json.loads(res_path.read_text())),
+                encoding="utf-8",
+            )
+        sys.exit(code)
