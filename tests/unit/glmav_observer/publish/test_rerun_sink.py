@@ -39,9 +39,14 @@ from glmav_observer.records import (
 T_TOL_S = 1e-9
 
 
+ESTIMATES = ("full", "c1", "c2", "c3", "active")
+
+
 def _vel(config: str, t: float, v_body: tuple[float, float, float], seq: int = 0) -> VelocityRecord:
-    v_ned = (v_body[0] + 10.0, v_body[1] + 20.0, v_body[2] + 30.0)
-    return VelocityRecord(1, config, t, v_body, v_ned, None, "ok", seq)
+    """u carries the configuration's index / 10 so that instances can be told apart."""
+    u = v_body[0] + 0.1 * ESTIMATES.index(config)
+    v_ned = (u + 10.0, v_body[1] + 20.0, v_body[2] + 30.0)
+    return VelocityRecord(1, config, t, (u, v_body[1], v_body[2]), v_ned, None, "ok", seq)
 
 
 def _health(t: float, active: str, faults: tuple[FaultEvent, ...]) -> HealthRecord:
@@ -174,20 +179,25 @@ def test_save_roundtrip(tmp_path: Path) -> None:
     assert sink.stats.send_errors == 0
 
     rec = read_recording(path)
-    full_u = rec["/vehicle/1/bank/full/v_body/u"]
-    np.testing.assert_allclose(full_u[TIMELINE], [0.005, 0.01, 0.015], rtol=0, atol=T_TOL_S)
-    assert full_u["Scalars:scalars"] == [[1.0], [2.0], [3.0]]  # float64 stored as is
-    assert full_u["static:SeriesLines:names"] == [["full"]]
+    # the bank: one entity per axis, one instance per configuration (full, c1, c2, c3)
+    bank_u = rec["/vehicle/1/bank/v_body/u"]
+    np.testing.assert_allclose(bank_u[TIMELINE], [0.005, 0.01, 0.015], rtol=0, atol=T_TOL_S)
+    expected_u = [[1.0 + k + 0.1 * i for i in range(4)] for k in range(3)]
+    assert bank_u["Scalars:scalars"] == expected_u  # float64 stored as is
+    assert bank_u["static:SeriesLines:names"] == [["full", "c1", "c2", "c3"]]
+    assert rec["/vehicle/1/bank/v_body/w"]["Scalars:scalars"] == [[3.0] * 4] * 3
     assert rec["/vehicle/1/active/v_ned/d"]["Scalars:scalars"] == [[33.0]] * 3
-    # est - truth with truth linearly interpolated: at t the truth u is 10 t
-    for c in ("full", "c3", "active"):
-        err = rec[f"/vehicle/1/error/{c}/v_body/u"]
-        expected = [1.0 - 0.05, 2.0 - 0.1, 3.0 - 0.15]
-        np.testing.assert_allclose(
-            [v[0] for v in err["Scalars:scalars"]], expected, rtol=0, atol=1e-12
-        )
-    err_n = rec["/vehicle/1/error/c2/v_ned/n"]["Scalars:scalars"]
-    np.testing.assert_allclose([v[0] for v in err_n], [11 - 0.5, 12 - 1.0, 13 - 1.5], atol=1e-12)
+    assert rec["/vehicle/1/active/v_body/u"]["Scalars:scalars"] == [[1.4], [2.4], [3.4]]
+    # est - truth with truth linearly interpolated: at t the truth u is 10 t, n is 100 t
+    err_u = rec["/vehicle/1/error/v_body/u"]
+    assert err_u["static:SeriesLines:names"] == [list(ESTIMATES)]
+    for k, (t, row) in enumerate(zip(err_u[TIMELINE], err_u["Scalars:scalars"], strict=True)):
+        expected = [1.0 + k + 0.1 * i - 10 * t for i in range(5)]
+        np.testing.assert_allclose(row, expected, rtol=0, atol=1e-12)
+    err_n = rec["/vehicle/1/error/v_ned/n"]["Scalars:scalars"]
+    np.testing.assert_allclose(
+        [row[2] for row in err_n], [11.2 - 0.5, 12.2 - 1.0, 13.2 - 1.5], rtol=0, atol=1e-12
+    )  # c2
     truth_w = rec["/vehicle/1/truth/v_body/w"]
     assert truth_w["Scalars:scalars"] == [[0.0], [0.6]]
     meas = [
@@ -196,11 +206,12 @@ def test_save_roundtrip(tmp_path: Path) -> None:
     np.testing.assert_allclose(meas, [1.0, 0.0, 0.0], atol=1e-15)  # E^T y, see above
     assert rec["/vehicle/1/ingest/measurement/v_ned/e"]["Scalars:scalars"] == [[1.0]]
     h = "/vehicle/1/health"
-    assert rec[f"{h}/residual/e"]["Scalars:scalars"] == [[-0.2], [-0.2]]
-    assert rec[f"{h}/test_ratio/n"]["Scalars:scalars"] == [[2.5], [2.5]]
-    assert rec[f"{h}/active_config"]["Scalars:scalars"] == [[0.0], [2.0]]  # full, then c2
-    assert rec[f"{h}/isolated_axis"]["Scalars:scalars"] == [[0.0], [1.0]]  # none, then n
-    assert rec[f"{h}/axis_state/n"]["Scalars:scalars"] == [[0.0], [3.0]]  # ok, then faulty
+    assert rec[f"{h}/residual"]["Scalars:scalars"] == [[0.1, -0.2, 0.3]] * 2  # n, e, d
+    assert rec[f"{h}/test_ratio"]["Scalars:scalars"] == [[2.5, 0.5, 0.25]] * 2
+    # ok 0, suspect 1, recovering 2, faulty 3
+    assert rec[f"{h}/axis_state"]["Scalars:scalars"] == [[0.0, 0.0, 1.0], [3.0, 0.0, 1.0]]
+    # (active config, isolated axis): (full, none) then (c2, n)
+    assert rec[f"{h}/state"]["Scalars:scalars"] == [[0.0, 0.0], [2.0, 1.0]]
     assert rec[f"{h}/events"]["TextLog:text"] == [
         ["fault isolated on axis n (bias) at 0.025 s"],
         ["active configuration full -> c2"],
@@ -213,7 +224,7 @@ def test_save_roundtrip(tmp_path: Path) -> None:
         pose["Transform3D:quaternion"][0][0], [0, 0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-7
     )
     arrow = rec["/world/vehicle/1/velocity/active"]["Arrows3D:vectors"]
-    np.testing.assert_allclose(arrow[0][0], [3.0, 2.0, 3.0], atol=1e-6)  # last active, float32
+    np.testing.assert_allclose(arrow[0][0], [3.4, 2.0, 3.0], atol=1e-6)  # last active, float32
     # the vehicle's clock only: no host-time timelines in the recording
     reader = RrdReader(path)
     timelines = {name for chunk in reader.stream() for name in chunk.timeline_names}
@@ -233,11 +244,11 @@ def test_save_mode_batches_all_rows_and_drops_unbracketed_errors(tmp_path: Path)
     sink.close()
     rec = read_recording(path)
     # decimation applies to live modes only: a saved log has every record
-    assert [v[0] for v in rec["/vehicle/1/bank/full/v_body/u"]["Scalars:scalars"]] == list(
-        map(float, range(n))
-    )
+    bank_u = rec["/vehicle/1/bank/v_body/u"]["Scalars:scalars"]
+    assert [v[0] for v in bank_u] == list(map(float, range(n)))  # the full configuration
+    assert all(math.isnan(x) for v in bank_u for x in v[1:])  # c1, c2, c3 never sent
     assert sink.stats.batches_sent >= 20  # flushed as it went, not all at close
-    err_t = rec["/vehicle/1/error/full/v_body/u"][TIMELINE]
+    err_t = rec["/vehicle/1/error/v_body/u"][TIMELINE]
     k_last_truth = 495  # the last k with k % 5 == 0 and k / 250 < 2
     # errors exist exactly where two truth samples bracket the estimate: k = 0 .. 495
     assert len(err_t) == k_last_truth + 1
@@ -266,6 +277,7 @@ def test_spawn_without_display_falls_back_to_save(
     assert f"Open it with: rerun {path}" in caplog.text
     sink.write(_vel("c1", 1.5, (4.0, 5.0, 6.0)))
     sink.close()
-    assert read_recording(path)["/vehicle/1/bank/c1/v_body/w"]["Scalars:scalars"] == [[6.0]]
+    w = read_recording(path)["/vehicle/1/bank/v_body/w"]["Scalars:scalars"]
+    assert w[0][1] == 6.0  # c1 is the second instance
     with pytest.raises(RerunModeError, match="no DISPLAY or WAYLAND_DISPLAY"):
         open_rerun_sink("spawn", fallback_save_path=None, environ={})
