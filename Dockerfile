@@ -63,10 +63,12 @@ RUN groupadd --gid 10001 glmav \
 
 COPY --from=builder /opt/glmav /opt/glmav
 # The project, without touching the dependency set; `pip check` fails the build if
-# constraints.txt no longer satisfies pyproject.toml.
-RUN --mount=type=bind,from=builder,source=/wheels,target=/wheels \
-    PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 \
-       pip install --no-deps --no-index --no-compile /wheels/glmav_observer-*.whl \
+# constraints.txt no longer satisfies pyproject.toml. (COPY, not RUN --mount=from=builder:
+# buildah's layer cache does not see a change in a mounted stage, COPY's checksum does.)
+COPY --from=builder /wheels /tmp/wheels
+RUN PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 \
+       pip install --no-deps --no-index --no-compile /tmp/wheels/glmav_observer-*.whl \
+    && rm -rf /tmp/wheels \
     && pip check \
     && python -m compileall -q /opt/glmav/lib/python3.11/site-packages/glmav_observer \
        /opt/glmav/lib/python3.11/site-packages/glmav_sitl \
@@ -89,4 +91,4 @@ HEALTHCHECK --interval=30s --timeout=15s --start-period=30s --retries=3 \
     CMD ["python", "/opt/glmav/healthcheck.py"]
 
 ENTRYPOINT ["glmav-observer"]
-CMD ["serve"]
+CMD ["serve", "--config", "/etc/glmav-observer/service.toml"]

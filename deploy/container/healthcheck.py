@@ -4,8 +4,8 @@ Modes, chosen by the environment variable GLMAV_HEALTH:
 
 - ``observer`` (default): healthy when the ``glmav-observer serve`` process of THIS
   container holds its Zenoh liveliness token ``<prefix>/@alive/<service-id>``. The
-  service id defaults to ``<hostname>-<pid>`` (publish/zenoh_sink.py), so the expected
-  ids are computed from the serve processes found in /proc; GLMAV_SERVICE_ID overrides.
+  expected id is taken from the serve processes found in /proc (their ``--config``
+  file's ``[service] id``, read with the daemon's own loader); GLMAV_SERVICE_ID overrides.
   The check opens its own Zenoh session with the config in GLMAV_HEALTH_ZENOH (default
   /etc/glmav-observer/zenoh/client-router.json5): it must reach the daemon (through the router).
 - ``zenoh``: healthy when a Zenoh session with that config opens and sees a router
@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
-import socket
 import sys
 import time
 from pathlib import Path
@@ -31,20 +29,44 @@ DEFAULT_CONFIG = "/etc/glmav-observer/zenoh/client-router.json5"
 TIMEOUT_S = float(os.environ.get("GLMAV_HEALTH_TIMEOUT_S", "5"))
 
 
+def _option(words: list[str], name: str) -> str | None:
+    """The value of ``--name VALUE`` or ``--name=VALUE`` in an argv (last one wins)."""
+    value = None
+    for i, word in enumerate(words):
+        if word == name and i + 1 < len(words):
+            value = words[i + 1]
+        elif word.startswith(name + "="):
+            value = word.split("=", 1)[1]
+    return value
+
+
 def serve_service_ids() -> set[str]:
-    """``<hostname>-<pid>`` for each ``glmav-observer serve`` process visible here."""
-    host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname()) or "host"
+    """The Zenoh service id of each ``glmav-observer serve`` process visible here.
+
+    The id is the daemon's ``[service] id`` setting: read with the daemon's own loader
+    from the ``--config`` file the process was started with (relative to its working
+    directory), the loader's default without one; a ``--service-id`` flag wins.
+    """
+    from glmav_observer.config import load_config
+
     ids: set[str] = set()
     for proc in Path("/proc").iterdir():
         if not proc.name.isdigit():
             continue
         try:
             argv = (proc / "cmdline").read_bytes().split(b"\0")
+            cwd = (proc / "cwd").resolve()
         except OSError:
             continue
         words = [a.decode(errors="replace") for a in argv if a]
-        if any(w.endswith("glmav-observer") for w in words) and "serve" in words:
-            ids.add(f"{host}-{proc.name}")
+        if not (any(w.endswith("glmav-observer") for w in words) and "serve" in words):
+            continue
+        explicit = _option(words, "--service-id")
+        if explicit:
+            ids.add(explicit)
+            continue
+        config = _option(words, "--config")
+        ids.add(load_config(cwd / config if config else None).service_id)
     return ids
 
 
