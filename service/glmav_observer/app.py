@@ -135,9 +135,12 @@ class Service:
         self.counters: collections.Counter[str] = collections.Counter()
         self.records = 0
         self.messages = 0
-        #: frames to send: (link id, bytes); the live loop writes them to its links
-        self.outbox: list[tuple[str, bytes]] = []
+        #: frames to send: (link id, bytes, peer); the live loop writes them to its links
+        self.outbox: list[tuple[str, bytes, Any]] = []
         self._vehicle_link: dict[int, str] = {}
+        self._vehicle_peer: dict[int, Any] = {}
+        #: the sender address of the datagram being processed (set by the live loop)
+        self.current_peer: Any = None
         self._mav = new_dialect()
         self._closed = False
         self.on_records: Callable[[list[Record]], None] | None = None
@@ -179,6 +182,7 @@ class Service:
                 self.estimators[ev.sysid].restart("clock_reset")
                 continue
             self._vehicle_link[ev.sysid] = link_id
+            self._vehicle_peer[ev.sysid] = self.current_peer
             out.extend(self._estimate(ev))
         if out:
             self._publish(out)
@@ -225,7 +229,9 @@ class Service:
                     extra={"sysid": sysid, "messages": [r.message for r in reqs]},
                 )
             for r in reqs:
-                self.outbox.append((link, encode_rate_request(self._mav, r)))
+                self.outbox.append(
+                    (link, encode_rate_request(self._mav, r), self._vehicle_peer.get(sysid))
+                )
                 self.counters["rate_requests_sent"] += 1
 
     # ------------------------------------------------------------------ live loop
@@ -250,6 +256,7 @@ class Service:
                     data = lk.read()
                     if not data:
                         break
+                    self.current_peer = lk.peer
                     self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
                     if not lk.datagram:
                         break
@@ -258,9 +265,9 @@ class Service:
                 self.rate_requests()
                 next_rate_check = now + RATE_CHECK_PERIOD_S
             while self.outbox:
-                lid, frame = self.outbox.pop(0)
+                lid, frame, peer = self.outbox.pop(0)
                 if lid in links:
-                    links[lid].write(frame)
+                    links[lid].write(frame, peer)
 
     # ------------------------------------------------------------------ results
     def summary(self) -> ServiceSummary:

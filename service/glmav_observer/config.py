@@ -219,7 +219,9 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
             raise ConfigError(
                 file, f"rates.hz.{name}", f"unknown message (one of {sorted(MESSAGE_IDS)})"
             )
-        wanted[name] = hz_r.get(name, float, 0.0, _non_negative)
+        wanted[name] = hz_r.get(
+            name, float, 0.0, lambda x: None if x >= 0 or x == -1 else "must be >= 0, or -1"
+        )
     hz_r.done()
     rates.done()
     ingest = IngestConfig(
@@ -229,7 +231,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         clock=clock,
         raw_imu_default=raw_default,
         raw_imu_by_sysid=by_sysid,
-        rates_hz={k: v for k, v in wanted.items() if v > 0},
+        rates_hz={k: v for k, v in wanted.items() if v != 0},
         rate_window_s=window_s,
         rate_shortfall_ratio=shortfall,
         rate_retry_s=retry_s,

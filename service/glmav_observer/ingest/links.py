@@ -38,6 +38,8 @@ class Link:
             )
         except (OSError, ValueError) as err:
             raise LinkError(f"{conn}: cannot open: {err}") from err
+        #: the sender of the last datagram read (UDP), to answer that vehicle
+        self.peer: Any = None
         port = getattr(self._m, "port", None)
         self._sock: socket.socket | None = port if isinstance(port, socket.socket) else None
         if self._sock is not None:
@@ -55,11 +57,12 @@ class Link:
         return fd
 
     def read(self) -> bytes:
-        """Bytes available now (b"" if none). UDP: exactly one datagram."""
+        """Bytes available now (b"" if none). UDP: exactly one datagram (sender in ``peer``)."""
         if self._sock is not None:
             try:
                 if self.datagram:
                     data, addr = self._sock.recvfrom(_UDP_MAX)
+                    self.peer = addr
                     if getattr(self._m, "udp_server", False):
                         self._m.last_address = addr  # replies go to the sender
                     return data
@@ -71,8 +74,12 @@ class Link:
         data = self._m.recv(_UDP_MAX)
         return bytes(data) if data else b""
 
-    def write(self, data: bytes) -> None:
+    def write(self, data: bytes, peer: Any = None) -> None:
+        """Send ``data``; on a UDP server link to ``peer`` (a vehicle's address) if given."""
         try:
+            if peer is not None and self._sock is not None and self.datagram:
+                self._sock.sendto(data, peer)
+                return
             self._m.write(data)
         except OSError as err:
             logger.warning("link write failed", extra={"link": self.conn, "error": str(err)})

@@ -86,6 +86,8 @@ class RateMonitor:
         if self._t_first_s is None or t_now_s - self._t_first_s < self.window_s:
             return out
         for m, hz in self.wanted_hz.items():
+            if hz <= 0:
+                continue  # a stream we asked to stop
             last = self._last_request_s.get(m, -float("inf"))
             if t_now_s - last < max(self.retry_s, self.window_s):
                 continue
