@@ -1,0 +1,557 @@
+"""Accuracy of the product against baselines, on simulated flights with truth.
+
+Each run: ``glmav_sitl`` flies a scenario at max speed and writes the MAVLink stream to a
+tlog; the service's ingest decodes it and its ``VehicleEstimator`` (default settings: the
+bank, FDI, hand-over) consumes the samples. In the same pass, on the same held inputs,
+three baselines from :mod:`benchmarks.baselines` run beside every configuration, each
+seeing the NED axes that configuration used in that step (the bank's ``last_meas_mask``):
+a filterpy Kalman filter, pure IMU dead reckoning and the raw measurement. Truth is
+SIM_STATE (50 Hz), compared with the latest estimates.
+
+Scenarios: hover, cruise, climbing-turn, gusts, launch; every velocity fault kind
+(dropout, freeze, bias, noise) on each NED axis and an accelerometer bias on each body axis
+(timing and magnitudes from the shipped ``fault-*`` scenarios); several seeds each.
+
+Metrics per scenario and configuration: RMSE and max error per NED axis; the 5 %
+convergence time (a second, cold-start pass over the first 10 s, every estimate started
+2.7 m/s off, the KF with a matching prior: time until the measured-axis error first falls
+below 5 % of its initial value); fault isolation delay; false isolations per hour;
+the faulty axis's error at +1, +5, +10 s after the fault starts.
+
+``python -m benchmarks.accuracy [--quick]`` or ``python -m benchmarks --only accuracy``:
+prints the tables, writes ``benchmarks/results/accuracy.json`` and regenerates
+``docs/benchmarks/accuracy.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from benchmarks.baselines import (
+    DeadReckoning,
+    KalmanVelocity,
+    RawMeasurement,
+    earth_accel_mps2,
+)
+from benchmarks.common import format_goals, format_table, goal, main_for
+from benchmarks.paper import tlog_samples
+from glmav_observer.estimation.vehicle import EstimatorConfig, VehicleEstimator
+from glmav_observer.ingest.samples import (
+    AttitudeSample,
+    ImuSample,
+    Sample,
+    TruthSample,
+    VelocitySample,
+)
+from glmav_observer.records import CONFIGS, LOST_AXIS_OF_CONFIG, NED_AXES, VelocityRecord
+
+FloatArray = NDArray[np.float64]
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "accuracy.md"
+NOMINAL = ("hover", "cruise", "climbing-turn", "gusts", "launch")
+VELOCITY_FAULTS = ("dropout", "freeze", "bias", "noise")
+BODY_AXES = ("x", "y", "z")
+#: The estimates compared at every truth sample, in column order of the trace.
+ESTIMATES: tuple[str, ...] = (
+    *(f"bank:{c}" for c in CONFIGS),
+    "bank:active",
+    *(f"kf:{c}" for c in CONFIGS),
+    *(f"raw:{c}" for c in CONFIGS),
+    "dr",
+)
+#: "Equal" in the verdict: the bank's RMSE within this factor of the KF's counts as a tie.
+TIE = 1.05
+CONV_WINDOW_S = 10.0
+AFTER_FAULT_S = (1.0, 5.0, 10.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """One scenario to fly: a label, the shipped scenario name, the fault (if any)."""
+
+    label: str
+    base: str
+    fault_kind: str = ""  # dropout | freeze | bias | noise | accel_bias
+    axis: str = ""  # n, e, d (velocity) or x, y, z (accelerometer, body)
+    duration_s: float | None = None
+
+
+def cases(quick: bool) -> list[Case]:
+    if quick:
+        return [
+            Case("hover", "hover", duration_s=15.0),
+            Case("climbing-turn", "climbing-turn", duration_s=20.0),
+            Case("launch", "launch", duration_s=12.0),
+            Case("fault-bias-e", "fault-bias", "bias", "e", duration_s=31.0),
+            Case("fault-dropout-d", "fault-dropout", "dropout", "d", duration_s=31.0),
+        ]
+    out = [Case(n, n) for n in NOMINAL]
+    out += [Case(f"fault-{k}-{a}", f"fault-{k}", k, a) for k in VELOCITY_FAULTS for a in NED_AXES]
+    out += [Case(f"fault-accel-bias-{a}", "fault-accel-bias", "accel_bias", a) for a in BODY_AXES]
+    return out
+
+
+def build_scenario(case: Case) -> Any:
+    """The shipped scenario with the fault moved to ``case.axis``."""
+    from glmav_sitl.scenario import load_scenario
+
+    sc = load_scenario(case.base)
+    if case.fault_kind:
+        (f,) = sc.faults
+        if case.fault_kind == "accel_bias":
+            mag = max(abs(v) for v in f.vector)
+            x, y, z = (mag if a == case.axis else 0.0 for a in BODY_AXES)
+            vec = (x, y, z)
+            f = dataclasses.replace(f, vector=vec)
+        else:
+            f = dataclasses.replace(f, axis=case.axis)
+        sc = dataclasses.replace(sc, faults=(f,), name=case.label)
+    if case.duration_s is not None:
+        sc = dataclasses.replace(sc, duration_s=case.duration_s)
+    return sc
+
+
+# ---------------------------------------------------------------------------- one pass
+
+
+@dataclasses.dataclass
+class Trace:
+    """Truth and every estimate at the truth samples (T,), (T, 3), name -> (T, 3)."""
+
+    t_s: FloatArray
+    v_true_ned_mps: FloatArray
+    est: dict[str, FloatArray]
+    t_start_s: float
+    faults: list[dict[str, Any]]
+    switches: list[dict[str, Any]]
+    counters: dict[str, int]
+
+
+#: Cold start: the initial estimate is off by the paper's (48) body velocity, taken as an
+#: NED error (m/s), so that the 5 % convergence time has an error to converge from.
+COLD_OFFSET_NED_MPS = (2.0, -1.3, 1.3)
+
+
+def run_pass(samples: Sequence[Sample], *, cold: bool, until_s: float = math.inf) -> Trace:
+    """The estimator and the baselines over ``samples``.
+
+    Warm (``cold=False``): everyone starts from the first measurement, as the estimator
+    does. Cold: every estimate starts off by :data:`COLD_OFFSET_NED_MPS`; the KF's prior
+    is σ = 2 m/s per axis (the size of that error).
+
+    The KFs and dead reckoning share one integral of the held earth-frame acceleration
+    between the instants they are read or updated: with F = I and additive Q,
+    predicting once over the sum equals predicting at every IMU step.
+    """
+    est = VehicleEstimator(1, EstimatorConfig())
+    kfs: list[KalmanVelocity] = []
+    raws: list[RawMeasurement] = []
+    dr: DeadReckoning | None = None
+    euler: tuple[float, float, float] | None = None
+    f: tuple[float, float, float] | None = None
+    pending_y: tuple[float, float, float] | None = None
+    acc_dv = np.zeros(3)  # ∫ a dt since the last flush
+    acc_dt = 0.0
+    t_prev = math.nan
+    t0 = math.nan
+    latest: dict[str, Any] = {}
+    t_l: list[float] = []
+    v_l: list[tuple[float, float, float]] = []
+    cols: dict[str, list[Any]] = {n: [] for n in ESTIMATES}
+
+    def flush() -> None:
+        nonlocal acc_dv, acc_dt
+        if acc_dt > 0.0 and dr is not None:
+            a_mean = acc_dv / acc_dt
+            dr.predict(acc_dt, a_mean)
+            for kf in kfs:
+                kf.predict(acc_dt, a_mean)
+        acc_dv = np.zeros(3)
+        acc_dt = 0.0
+
+    for s in samples:
+        held = (euler, f)
+        recs = est.on_sample(s)
+        t_bank = est.t_bank_s
+        if not kfs and t_bank is not None and isinstance(s, VelocitySample):
+            # the estimator just started from this measurement: so do the baselines
+            v0 = s.v_ned_mps
+            if cold:
+                assert euler is not None
+                v0 = tuple(v + o for v, o in zip(v0, COLD_OFFSET_NED_MPS, strict=True))  # type: ignore[assignment]
+                for c in CONFIGS:
+                    est.bank.set_state_ned(c, v0, euler)
+            p0 = 4.0 if cold else 0.05**2
+            kfs = [KalmanVelocity(v0, p0_mps2=p0) for _ in CONFIGS]
+            raws = [RawMeasurement(v0) for _ in CONFIGS]
+            dr = DeadReckoning(v0)
+            t_prev = t0 = t_bank
+            latest = {f"bank:{c}": v0 for c in (*CONFIGS, "active")}
+        elif kfs and t_bank is not None and t_bank > t_prev:
+            assert held[0] is not None and held[1] is not None
+            if pending_y is not None:  # applied at its own time, with the axes the bank used
+                masks = est.bank.last_meas_mask
+                flush()
+                for i in range(4):
+                    kfs[i].update(pending_y, masks[i])
+                    raws[i].update(pending_y, masks[i])
+                pending_y = None
+            dt = t_bank - t_prev
+            acc_dv += earth_accel_mps2(held[0], held[1]) * dt
+            acc_dt += dt
+            t_prev = t_bank
+        if isinstance(s, AttitudeSample):
+            euler = s.euler_rad
+        elif isinstance(s, ImuSample):
+            f = s.f_body_mps2
+        elif isinstance(s, VelocitySample) and kfs:
+            pending_y = s.v_ned_mps
+        for r in recs:
+            if isinstance(r, VelocityRecord):
+                latest[f"bank:{r.config}"] = r.v_ned_mps
+        if isinstance(s, TruthSample) and kfs and dr is not None:
+            if s.t_boot_s > until_s:
+                break
+            flush()
+            t_l.append(s.t_boot_s)
+            v_l.append(s.v_ned_mps)
+            for c in (*CONFIGS, "active"):
+                cols[f"bank:{c}"].append(latest[f"bank:{c}"])
+            for i, c in enumerate(CONFIGS):
+                cols[f"kf:{c}"].append(kfs[i].v_ned_mps)
+                cols[f"raw:{c}"].append(raws[i].v_ned_mps)
+            cols["dr"].append(dr.v_ned_mps)
+    return Trace(
+        t_s=np.asarray(t_l),
+        v_true_ned_mps=np.asarray(v_l),
+        est={n: np.asarray(v) for n, v in cols.items()},
+        t_start_s=t0,
+        faults=[ev.to_dict() for ev in est.faults],
+        switches=[sw.to_dict() for sw in est.switches],
+        counters=dict(est.counters),
+    )
+
+
+# ---------------------------------------------------------------------------- metrics
+
+
+def _config_of(name: str) -> str:
+    return name.split(":")[1] if ":" in name else "full"
+
+
+def _measured_axes(config: str) -> list[int]:
+    lost = LOST_AXIS_OF_CONFIG.get(config)
+    return [j for j in range(3) if lost is None or NED_AXES[j] != lost]
+
+
+def convergence_time(tr: Trace, name: str) -> float:
+    """Cold start: time from the start until the measured-axis error first falls below 5 %
+    of its initial value (inf if it never does within the pass)."""
+    config = _config_of(name)
+    cfg = "full" if config == "active" or name == "dr" else config
+    meas = _measured_axes(cfg)
+    err = np.linalg.norm(tr.est[name][:, meas] - tr.v_true_ned_mps[:, meas], axis=1)
+    below = np.flatnonzero(err <= 0.05 * float(err[0]))
+    return float(tr.t_s[below[0]] - tr.t_start_s) if below.size else math.inf
+
+
+def evaluate(case: Case, seed: int) -> dict[str, Any]:
+    """Fly ``case`` with ``seed``; every metric of the run (JSON-able)."""
+    from glmav_sitl.runner import run
+
+    sc = build_scenario(case)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        tlog = Path(tmp) / "run.tlog"
+        run(sc, speed="max", seed=seed, tlog_path=tlog)
+        t_sim = time.perf_counter() - t0
+        samples, _ = tlog_samples(tlog)
+    t1 = time.perf_counter()
+    tr = run_pass(samples, cold=False)
+    cold = run_pass(samples, cold=True, until_s=CONV_WINDOW_S)
+    t_est = time.perf_counter() - t1
+    err = {n: v - tr.v_true_ned_mps for n, v in tr.est.items()}
+    per: dict[str, Any] = {}
+    for n, e in err.items():
+        per[n] = {
+            "rmse_ned_mps": np.sqrt(np.mean(e**2, axis=0)).tolist(),
+            "max_ned_mps": np.max(np.abs(e), axis=0).tolist(),
+            "conv_5pct_s": convergence_time(cold, n),
+        }
+    out: dict[str, Any] = {
+        "case": case.label,
+        "seed": seed,
+        "duration_s": float(tr.t_s[-1] - tr.t_start_s),
+        "per_estimate": per,
+        "faults_isolated": tr.faults,
+        "switches": tr.switches,
+        "wall_sim_s": t_sim,
+        "wall_estimation_s": t_est,
+        "n_samples": len(samples),
+    }
+    if case.fault_kind:
+        (flt,) = sc.faults
+        out["fault"] = {
+            "kind": case.fault_kind,
+            "axis": case.axis,
+            "t_start_s": flt.t_start_s,
+            "t_end_s": flt.t_end_s,
+        }
+        vel_axis = NED_AXES.index(case.axis) if case.axis in NED_AXES else None
+        good = [
+            ev
+            for ev in tr.faults
+            if vel_axis is not None
+            and ev["axis"] == case.axis
+            and ev["t_detect_s"] >= flt.t_start_s
+        ]
+        out["isolation_delay_s"] = good[0]["t_detect_s"] - flt.t_start_s if good else None
+        out["false_isolations"] = len(tr.faults) - (1 if good else 0)
+        after: dict[str, dict[str, float]] = {}
+        for dt in AFTER_FAULT_S:
+            k = int(np.argmin(np.abs(tr.t_s - (flt.t_start_s + dt))))
+            row = {}
+            for n in ("bank:active", "bank:full", "kf:full", "raw:full", "dr"):
+                e = err[n][k]
+                row[n] = (
+                    abs(float(e[vel_axis])) if vel_axis is not None else float(np.linalg.norm(e))
+                )
+            after[f"+{dt:g}s"] = row
+        out["faulty_axis_error_after_mps"] = after
+    else:
+        out["false_isolations"] = len(tr.faults)
+    return out
+
+
+# ---------------------------------------------------------------------------- suite
+
+
+def _task(args: tuple[Case, int]) -> dict[str, Any]:
+    return evaluate(*args)
+
+
+def _mean(xs: Sequence[float]) -> float:
+    v = [x for x in xs if x is not None and math.isfinite(x)]
+    return float(np.mean(v)) if v else math.nan
+
+
+def _rms_over(
+    runs: list[dict[str, Any]], name: str, axes: list[int], key: str = "rmse_ned_mps"
+) -> float:
+    """Mean over seeds of the RMSE (or max) combined over ``axes`` (root mean square)."""
+    vals = []
+    for r in runs:
+        a = np.asarray(r["per_estimate"][name][key])[axes]
+        vals.append(float(np.sqrt(np.mean(a**2))) if key == "rmse_ned_mps" else float(np.max(a)))
+    return _mean(vals)
+
+
+def summarise(results: list[dict[str, Any]], case_list: list[Case]) -> dict[str, Any]:
+    by: dict[str, list[dict[str, Any]]] = {}
+    for r in results:
+        by.setdefault(r["case"], []).append(r)
+    nominal: list[dict[str, Any]] = []
+    verdict: list[dict[str, Any]] = []
+    for case in case_list:
+        if case.fault_kind:
+            continue
+        runs = by[case.label]
+        for c in CONFIGS:
+            meas = _measured_axes(c)
+            lost = [j for j in range(3) if j not in meas]
+            row: dict[str, Any] = {"scenario": case.label, "config": c}
+            for est in ("bank", "kf", "raw"):
+                row[f"{est} meas RMSE"] = _rms_over(runs, f"{est}:{c}", meas)
+            row["dr RMSE"] = _rms_over(runs, "dr", meas)
+            row["bank meas max"] = _rms_over(runs, f"bank:{c}", meas, "max_ned_mps")
+            row["kf meas max"] = _rms_over(runs, f"kf:{c}", meas, "max_ned_mps")
+            row["bank lost RMSE"] = _rms_over(runs, f"bank:{c}", lost) if lost else math.nan
+            row["kf lost RMSE"] = _rms_over(runs, f"kf:{c}", lost) if lost else math.nan
+            row["bank t5% (s)"] = _mean(
+                [r["per_estimate"][f"bank:{c}"]["conv_5pct_s"] for r in runs]
+            )
+            row["kf t5% (s)"] = _mean([r["per_estimate"][f"kf:{c}"]["conv_5pct_s"] for r in runs])
+            ratio = row["bank meas RMSE"] / row["kf meas RMSE"]
+            row["bank/kf"] = ratio
+            row["verdict"] = (
+                "bank better" if ratio < 1 / TIE else ("tie" if ratio <= TIE else "**KF better**")
+            )
+            nominal.append(row)
+            verdict.append({"scenario": case.label, "config": c, "ratio": ratio})
+    faults: list[dict[str, Any]] = []
+    for case in case_list:
+        if not case.fault_kind:
+            continue
+        runs = by[case.label]
+        row = {"scenario": case.label}
+        delays = [r["isolation_delay_s"] for r in runs]
+        row["isolated"] = f"{sum(d is not None for d in delays)}/{len(runs)}"
+        row["delay (s)"] = _mean(delays)
+        row["false iso."] = sum(r["false_isolations"] for r in runs)
+        row["bank active RMSE"] = _rms_over(runs, "bank:active", [0, 1, 2])
+        row["kf RMSE"] = _rms_over(runs, "kf:full", [0, 1, 2])
+        for dt in AFTER_FAULT_S:
+            key = f"+{dt:g}s"
+            row[f"bank {key}"] = _mean(
+                [r["faulty_axis_error_after_mps"][key]["bank:active"] for r in runs]
+            )
+            row[f"kf {key}"] = _mean(
+                [r["faulty_axis_error_after_mps"][key]["kf:full"] for r in runs]
+            )
+        row["dr +10s"] = _mean([r["faulty_axis_error_after_mps"]["+10s"]["dr"] for r in runs])
+        row["raw +10s"] = _mean(
+            [r["faulty_axis_error_after_mps"]["+10s"]["raw:full"] for r in runs]
+        )
+        faults.append(row)
+    hours = sum(r["duration_s"] for r in results) / 3600.0
+    n_false = sum(r["false_isolations"] for r in results)
+    return {
+        "nominal": nominal,
+        "faults": faults,
+        "verdict": verdict,
+        "false_isolations": n_false,
+        "flight_hours": hours,
+        "false_isolations_per_hour": n_false / hours if hours > 0 else math.nan,
+    }
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    seeds = [0] if quick else [0, 1, 2]
+    case_list = cases(quick)
+    tasks = [(c, s) for c in case_list for s in seeds]
+    t0 = time.perf_counter()
+    workers = max(1, min(len(tasks), os.cpu_count() or 1))
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            results = list(pool.map(_task, tasks))
+    else:
+        results = [_task(t) for t in tasks]
+    wall = time.perf_counter() - t0
+    summary = summarise(results, case_list)
+    ratios = [v["ratio"] for v in summary["verdict"]]
+    delays = [r["isolation_delay_s"] for r in results if r.get("isolation_delay_s") is not None]
+    vel_runs = [r for r in results if r.get("fault", {}).get("axis") in NED_AXES]
+    b10 = [r["faulty_axis_error_after_mps"]["+10s"]["bank:active"] for r in vel_runs]
+    k10 = [r["faulty_axis_error_after_mps"]["+10s"]["kf:full"] for r in vel_runs]
+    goals = [
+        goal(
+            "bank/KF measured-axis RMSE, worst (scenario, config)",
+            max(ratios),
+            TIE,
+            higher_is_better=False,
+        ),
+        goal(
+            "bank/KF measured-axis RMSE, median",
+            float(np.median(ratios)),
+            1.0,
+            higher_is_better=False,
+        ),
+        goal(
+            "false isolations per flight hour",
+            summary["false_isolations_per_hour"],
+            1.0,
+            higher_is_better=False,
+        ),
+    ]
+    if delays:
+        goals.append(
+            goal(
+                "fault isolation delay, median (s)",
+                float(np.median(delays)),
+                1.0,
+                higher_is_better=False,
+            )
+        )
+    if b10:
+        goals.append(
+            goal(
+                "faulty-axis error +10 s, bank/KF (median over runs)",
+                float(np.median(b10) / max(np.median(k10), 1e-12)),
+                1.0,
+                higher_is_better=False,
+            )
+        )
+    result = {
+        "name": "accuracy",
+        "quick": quick,
+        "seeds": seeds,
+        "rows": summary["nominal"] + summary["faults"],
+        "goals": goals,
+        "summary": summary,
+        "runs": results,
+        "wall_s": wall,
+        "workers": workers,
+    }
+    DOC.parent.mkdir(parents=True, exist_ok=True)
+    DOC.write_text(to_markdown(result) + "\n", encoding="utf-8")
+    return result
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    s = result["summary"]
+    cmd = "python -m benchmarks.accuracy" + (" --quick" if result["quick"] else "")
+    lines = [
+        "# Accuracy against baselines",
+        "",
+        f"Produced by `{cmd}` (also `python -m benchmarks --only accuracy`); "
+        f"seeds {result['seeds']}, {len(result['runs'])} runs, {result['wall_s']:.0f} s wall "
+        f"on {result['workers']} worker(s). Do not edit by hand.",
+        "",
+        "Every run: SITL → tlog → the service's ingest → its estimator (defaults: bank, FDI,",
+        "hand-over); in the same pass, on the same held inputs, a filterpy Kalman filter",
+        "(state V_ned, V̇ = E f + g e_d, Q from the accelerometer density 4e-3 m/s²/√Hz,",
+        "R = 0.05² per axis), IMU dead reckoning (dr) and the raw measurement held, each",
+        "seeing the NED axes the configuration used in that step. Truth: SIM_STATE at 50 Hz.",
+        f"Errors in m/s, mean over seeds. 'tie': bank RMSE within ×{TIE} of the KF's.",
+        "",
+        "## Goals",
+        "",
+        format_goals(result["goals"]),
+        "",
+        "## Nominal flights: measured axes (and the lost axis of c1-c3)",
+        "",
+        "meas = the axes the configuration measures; lost = the axis it does not (pure",
+        "dead reckoning from the first sample for bank and KF alike: no estimator can",
+        "observe it, see docs/paper-reproduction.md). t5%: cold start 2.7 m/s off (the KF",
+        "with a matching prior), time until the measured-axis error first falls below 5 %.",
+        "",
+        format_table(s["nominal"]),
+        "",
+        "## Sensor faults: isolation and the faulty axis",
+        "",
+        "delay: isolation time − fault start. false iso.: isolations of another axis or",
+        "before the fault (accelerometer faults: any isolation). bank = the active",
+        "estimate (hand-over to the configuration without the axis); kf = the KF fed the",
+        "same axes as the bank's full configuration (the FDI's verdicts). +N s: |error| of",
+        "the faulty axis (accelerometer faults: ‖error‖) N s after the fault starts.",
+        "",
+        format_table(s["faults"]),
+        "",
+        f"False isolations: {s['false_isolations']} in {s['flight_hours']:.3f} flight hours "
+        f"= {s['false_isolations_per_hour']:.2f} per hour.",
+    ]
+    worse = [v for v in s["verdict"] if v["ratio"] > TIE]
+    lines += ["", "## Where the bank does not beat or equal the KF", ""]
+    if worse:
+        lines += [
+            f"- {v['scenario']} / {v['config']}: bank/KF RMSE = {v['ratio']:.3g}" for v in worse
+        ]
+    else:
+        lines += ["- nowhere in this run (measured axes, every scenario and configuration)."]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main_for(sys.modules[__name__]))
