@@ -82,7 +82,7 @@ _FAULT: Schema = _object(
     }
 )
 
-_AXIS_STATE = {"enum": ["ok", "suspect", "faulty", "recovering"]}
+_AXIS_STATE = {"enum": ["warmup", "ok", "suspect", "faulty", "recovering"]}
 
 HEALTH: Schema = _object(
     {

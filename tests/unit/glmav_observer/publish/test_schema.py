@@ -52,7 +52,7 @@ def velocity_records(draw: st.DrawFn) -> VelocityRecord:
 
 @st.composite
 def health_records(draw: st.DrawFn) -> HealthRecord:
-    axis_states = st.sampled_from(["ok", "suspect", "faulty", "recovering"])
+    axis_states = st.sampled_from(["warmup", "ok", "suspect", "faulty", "recovering"])
     faults = st.lists(
         st.builds(
             FaultEvent,

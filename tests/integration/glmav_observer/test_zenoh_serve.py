@@ -1,0 +1,190 @@
+"""End to end: the SITL streams MAVLink over UDP to ``glmav-observer serve``, which
+publishes on Zenoh as a client of a ``glmav-observer router`` subprocess; a client-mode
+subscriber in this process checks every key, the schemas, the values (against the records
+the service itself wrote with ``--out``), the queryables and the liveliness tokens.
+Loopback only, multicast scouting off."""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from zenoh_helpers import RouterProcess, client_config, client_session, wait_until
+
+from glmav_observer.publish.schema import validate
+from glmav_observer.records import CONFIGS
+
+pytestmark = pytest.mark.timeout(120)
+
+REPO = Path(__file__).resolve().parents[3]
+SITL = str(Path(sys.executable).with_name("glmav-sitl"))
+CLI = [sys.executable, "-m", "glmav_observer.cli"]
+DECIMATION = {"velocity": 5, "active": 1, "health": 1}
+
+
+def _service_toml(tmp: Path) -> Path:
+    """The shipped service.toml with this test's id and decimation."""
+    text = (REPO / "configs" / "service.toml").read_text(encoding="utf-8")
+    text = text.replace('id = "glmav-observer"', 'id = "e2e-svc"', 1)
+    head, sep, tail = text.partition("[zenoh.decimation]")
+    assert sep and tail.count("velocity = 1\n") == 1
+    text = head + sep + tail.replace("velocity = 1\n", f"velocity = {DECIMATION['velocity']}\n")
+    path = tmp / "service.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _row_of(value: dict[str, Any]) -> dict[str, Any]:
+    """The velocity payload as the file sink's flat row (records.flatten's names)."""
+    row = {k: v for k, v in value.items() if not isinstance(v, list)}
+    for name, axes in (("v_body_mps", "uvw"), ("v_ned_mps", "ned")):
+        for axis, x in zip(axes, value[name], strict=True):
+            row[f"{name}_{axis}"] = x
+    return row
+
+
+@pytest.fixture
+def router(free_tcp_port: Callable[[], int]) -> Iterator[RouterProcess]:
+    router = RouterProcess(free_tcp_port())
+    router.start()
+    yield router
+    router.stop()
+
+
+def test_serve_publishes_what_it_estimates_from_the_sitl(
+    tmp_path: Path, router: RouterProcess, free_udp_port: Callable[[], int]
+) -> None:
+    viewer = client_session(router.port)
+    samples: list[tuple[str, str, dict[str, Any]]] = []
+    viewer.declare_subscriber(
+        "glmav/**",
+        lambda s: samples.append(
+            (str(s.key_expr), str(s.encoding), json.loads(s.payload.to_bytes()))
+        ),
+    )
+    alive: list[tuple[str, str]] = []
+    viewer.liveliness().declare_subscriber(
+        "glmav/@alive/**",
+        lambda s: alive.append((str(s.key_expr), "+" if s.kind == zenoh.SampleKind.PUT else "-")),
+        history=True,
+    )
+    udp = free_udp_port()
+    out = tmp_path / "records.jsonl"
+    zenoh_config = client_config(tmp_path / "client.json5", router.port)
+    serve = subprocess.Popen(
+        [
+            *CLI,
+            "serve",
+            "--config",
+            str(_service_toml(tmp_path)),
+            "--zenoh",
+            str(zenoh_config),
+            "--link",
+            f"udpin:127.0.0.1:{udp}",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert wait_until(lambda: ("glmav/@alive/e2e-svc", "+") in alive, 30), serve.poll()
+        sitl = subprocess.run(
+            [
+                SITL,
+                "run",
+                "--scenario",
+                "cruise",
+                "--duration",
+                "8",
+                "--speed",
+                "4",
+                "--link",
+                f"udpout:127.0.0.1:{udp}",
+                "--sysid",
+                "7",
+            ],
+            check=False,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert sitl.returncode == 0, sitl.stderr
+        assert ("glmav/@alive/e2e-svc/7", "+") in alive
+
+        def query(selector: str) -> dict[str, Any]:
+            replies = {}
+            for reply in viewer.get(selector, timeout=5.0):
+                assert reply.ok is not None
+                replies[str(reply.ok.key_expr)] = json.loads(reply.ok.payload.to_bytes())
+            return replies
+
+        # the last estimate has arrived when the subscriber holds the state's latest seq
+        def caught_up() -> bool:
+            state = query("glmav/7/state").get("glmav/7/state")
+            last = state["velocity"]["active"]["seq"] if state else None
+            got = [v["seq"] for k, _, v in samples if k == "glmav/7/velocity/active"]
+            return last is not None and bool(got) and got[-1] == last
+
+        assert wait_until(caught_up, 20, period_s=0.2)
+        state = query("glmav/*/state")["glmav/7/state"]
+        config = query("glmav/@config/e2e-svc")["glmav/@config/e2e-svc"]
+        serve.send_signal(signal.SIGINT)
+        stdout, stderr = serve.communicate(timeout=30)
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.communicate()
+    assert serve.returncode == 0, stderr
+    # withdrawn by the clean close, well before the 10 s lease would expire
+    assert wait_until(lambda: ("glmav/@alive/e2e-svc", "-") in alive, 5)
+    assert ("glmav/@alive/e2e-svc/7", "-") in alive
+    viewer.close()
+
+    # every key, valid, as application/json
+    keys = Counter(key for key, _, _ in samples)
+    want = {f"glmav/7/velocity/{c}" for c in (*CONFIGS, "active")}
+    want |= {"glmav/7/health", "glmav/7/measurement", "glmav/7/truth"}
+    assert set(keys) == want
+    for key, encoding, value in samples:
+        assert encoding == "application/json"
+        assert validate(value) == [], (key, validate(value))
+    assert validate(state) == [] and validate(config) == []
+    assert config["decimation"]["velocity"] == DECIMATION["velocity"]
+    assert config["config"]["service_id"] == "e2e-svc"
+
+    # values: what arrived is what the service computed (its own --out file)
+    rows = [json.loads(line) for line in out.read_text(encoding="utf-8").splitlines()]
+    written: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        if row["schema"] == "glmav.velocity/1":
+            written[row["config"]].append(row)
+    assert len(written["active"]) > 0.9 * 8 * 250  # 8 s of sim at ~250 Hz (the IMU rate)
+    for config_name in (*CONFIGS, "active"):
+        every = DECIMATION["active" if config_name == "active" else "velocity"]
+        expected = written[config_name][::every]  # the 1st, N+1st, ... of each key
+        got = [_row_of(v) for k, _, v in samples if k == f"glmav/7/velocity/{config_name}"]
+        # TCP loopback at ~1.5k records/s: nothing dropped, nothing reordered
+        assert len(got) == len(expected), config_name
+        for g, e in zip(got, expected, strict=True):
+            assert g == {k: e[k] for k in g}, config_name
+            assert all(math.isfinite(x) for x in (g["v_ned_mps_n"], g["v_ned_mps_e"]))
+    n_health = sum(1 for r in rows if r["schema"] == "glmav.health/1")
+    assert keys["glmav/7/health"] == n_health > 0
+    # the state queryable held the very last estimate
+    assert _row_of(state["velocity"]["active"]) == {
+        k: written["active"][-1][k] for k in _row_of(state["velocity"]["active"])
+    }
+    # the daemon's own count of the records it gave its sinks
+    assert f"records {len(rows)}," in stdout
+    assert "vehicle 7: active=" in stdout
