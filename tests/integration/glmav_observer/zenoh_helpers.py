@@ -1,15 +1,9 @@
-"""Helpers for the Zenoh tests: a router subprocess, loopback configs, records, waiting.
-
-Run as a script it is a stand-in publisher (``python zenoh_helpers.py CONFIG SERVICE_ID``):
-it opens the sink, writes records of vehicle 1 at ~250 Hz and closes the sink on SIGINT or
-SIGTERM, printing ``ready`` once open and ``closed <published>`` at the end.
-"""
+"""Helpers for the Zenoh tests: a router subprocess, loopback configs, records, waiting."""
 
 from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -212,28 +206,3 @@ def vehicle_stream(sysid: int, steps: int) -> list[Record]:
         if step % 5 == 0:
             out.append(truth(sysid, step // 5))
     return out
-
-
-def _standin_main(config: str, service_id: str) -> int:
-    from glmav_observer.publish.zenoh_sink import open_zenoh_sink
-
-    stop = threading.Event()
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, lambda *_: stop.set())
-    sink = open_zenoh_sink(
-        config, service_id=service_id, effective_config={"stand_in": True, "pid": os.getpid()}
-    )
-    print("ready", flush=True)
-    step = 0
-    while not stop.wait(0.004):
-        for record in (velocity(1, c, step) for c in (*CONFIGS, "active")):
-            sink.write(record)
-        step += 1
-    published = sum(sink.published.values())
-    sink.close()
-    print(f"closed {published}", flush=True)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(_standin_main(sys.argv[1], sys.argv[2]))

@@ -104,7 +104,7 @@ def test_the_schemas_are_valid_json_schema_documents() -> None:
         jsonschema.Draft202012Validator.check_schema(schema)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(any_record)
 def test_every_encoded_record_is_valid_for_both_validators(record: Any) -> None:
     payload = json.loads(encode_payload(record))
