@@ -103,7 +103,13 @@ AXIS_COLORS: tuple[tuple[int, int, int], ...] = ((228, 26, 28), (55, 126, 184), 
 #: Encodings of the state series (a scalar per state so that the viewer plots steps).
 ACTIVE_CONFIG_INDEX: dict[str, int] = {c: i for i, c in enumerate(CONFIGS)}
 ISOLATED_AXIS_INDEX: dict[str | None, int] = {None: 0, "n": 1, "e": 2, "d": 3}
-AXIS_STATE_INDEX: dict[str, int] = {"ok": 0, "suspect": 1, "recovering": 2, "faulty": 3}
+AXIS_STATE_INDEX: dict[str, int] = {
+    "warmup": -1,
+    "ok": 0,
+    "suspect": 1,
+    "recovering": 2,
+    "faulty": 3,
+}
 
 #: Airframe half sizes (m) in FRD: body diameter D = 0.08, length l = 0.30 (design.md).
 _BODY_HALF_SIZES_M = (0.04, 0.04, 0.15)
@@ -247,7 +253,7 @@ def build_blueprint(sysids: Sequence[int]) -> rrb.Blueprint:
         )
         health = rrb.Horizontal(
             rrb.Vertical(
-                series("axis state (0 ok,1 suspect,2 recovering,3 faulty)", [f"{h}/axis_state"]),
+                series("axis state (-1 warm-up,0 ok,1 suspect,2 recovering,3 faulty)", [f"{h}/axis_state"]),
                 series("lost-axis sigma (m/s)", [f"{active_path(sysid)}/sigma_lost_mps"]),
             ),
             rrb.TextLogView(name="events", origin=f"{h}/events"),
@@ -524,7 +530,7 @@ class RerunSink:
         *,
         mode: RerunMode,
         decimation: int = 1,
-        flush_period_s: float = 0.25,
+        flush_period_s: float = 0.5,
         batch_rows: int = 20_000,
         max_queued_batches: int = 64,
         truth_max_gap_s: float = 0.1,
@@ -1026,7 +1032,7 @@ def open_rerun_sink(
     web_port: int | None = DEFAULT_WEB_PORT,
     spawn_port: int = DEFAULT_GRPC_PORT,
     server_memory_limit: str = "512MiB",
-    flush_period_s: float = 0.25,
+    flush_period_s: float = 0.5,
     batch_rows: int = 20_000,
     max_queued_batches: int = 64,
     environ: Mapping[str, str] | None = None,
