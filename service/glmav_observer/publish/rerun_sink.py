@@ -253,7 +253,10 @@ def build_blueprint(sysids: Sequence[int]) -> rrb.Blueprint:
         )
         health = rrb.Horizontal(
             rrb.Vertical(
-                series("axis state (-1 warm-up,0 ok,1 suspect,2 recovering,3 faulty)", [f"{h}/axis_state"]),
+                series(
+                    "axis state (-1 warm-up,0 ok,1 suspect,2 recovering,3 faulty)",
+                    [f"{h}/axis_state"],
+                ),
                 series("lost-axis sigma (m/s)", [f"{active_path(sysid)}/sigma_lost_mps"]),
             ),
             rrb.TextLogView(name="events", origin=f"{h}/events"),
