@@ -49,6 +49,10 @@ from support.ingest_harness import Harness, velocity_series  # noqa: E402
 
 REAL_TLOGS = ROOT.parent / "shared" / "data" / "real-tlogs"
 CASES_PER_FRAME = 3
+#: valid frames before the damage starts: the vehicle is admitted first. Without this, a
+#: storm of new system ids can fill the vehicle cap before the vehicle's first sample
+#: message, which then waits ``evict_idle_s`` (by design: docs/reliability.md).
+WARMUP_FRAMES = 50
 DOC = ROOT / "docs" / "benchmarks" / "fuzz_ingest.md"
 
 
@@ -70,9 +74,11 @@ def run_session(
     t_host = 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        for frame in stream.frames:
+        for i, frame in enumerate(stream.frames):
             t_host += 0.001
             h.feed(frame, t_host)
+            if i < WARMUP_FRAMES:
+                continue
             v = h.ingest.vehicles.get(VEHICLE_SYSID)
             if v is not None and v.clock.t_now_s is not None:
                 cm.t_ms = int(v.clock.t_now_s * 1000)
@@ -166,7 +172,7 @@ def run(quick: bool = False) -> dict[str, Any]:
         if safe and r["same_estimates"]:
             sessions["safe_same"] += 1
     wall = time.perf_counter() - t0
-    ath = run_atheris(20_000 if quick else 300_000)
+    ath = run_atheris(5_000 if quick else 100_000)
     rows = [{"reason": k, "count": v} for k, v in sorted(totals.items())]
     goals = [
         goal("cases run", float(n), float(n_target), higher_is_better=True),
