@@ -95,6 +95,7 @@ KEYRING=/usr/share/keyrings/debian-archive-keyring.gpg
 KEYRING_ARGS=()
 [[ -r $KEYRING ]] && KEYRING_ARGS=(--keyring="$KEYRING")
 
+previous_id="$(podman_ image inspect --format '{{.Id}}' "$BASE_TAG" 2>/dev/null || true)"
 ROOT="$(mktemp -d /var/tmp/glmav-base-root.XXXXXX)"
 cleanup() { rm -rf --one-file-system "$ROOT"; }
 trap cleanup EXIT
@@ -152,6 +153,7 @@ tar --numeric-owner --xattrs -C "$ROOT" -c . | podman_ import --quiet \
     --message "local stand-in for python:3.11-slim-bookworm (debootstrap $SUITE, Debian python3)" \
     - "$BASE_TAG" >/dev/null
 
+if [[ -n $previous_id ]]; then podman_ rmi "$previous_id" >/dev/null 2>&1 || true; fi
 podman_ run --rm --pull=never --network none "${ULIMITS[@]}" "$BASE_TAG" python -c \
     'import ssl, sys, venv; assert sys.version_info[:2] == (3, 11), sys.version; print("base ok", sys.version.split()[0])'
 log "done in $(($(date +%s) - start)) s; size: $(podman_ image inspect --format '{{.Size}}' "$BASE_TAG") bytes"

@@ -213,6 +213,7 @@ host_ca_bundle() {
 )
 
 log "building $IMAGE (log: $WORK/build.log)"
+previous_id="$(podman image inspect --format '{{.Id}}' "$IMAGE" 2>/dev/null || true)"
 t=$(date +%s)
 # --format docker: the OCI image format has no HEALTHCHECK; --network host: the build's pip
 # reaches the index like the host does; --pull=never: use the local base image.
@@ -223,6 +224,11 @@ if ! podman build --format docker --pull=never --network host \
     fail "podman build"
 fi
 T_BUILD=$(($(date +%s) - t))
+# The image this tag named before, now untagged: remove it (its layers stay as build cache
+# while the new image shares them).
+if [[ -n $previous_id && $previous_id != "$(podman image inspect --format '{{.Id}}' "$IMAGE")" ]]; then
+    podman rmi "$previous_id" >/dev/null 2>&1 || true
+fi
 SIZE_BYTES=$(podman image inspect --format '{{.Size}}' "$IMAGE")
 log "image built in ${T_BUILD}s, size $((SIZE_BYTES / 1000000)) MB"
 
