@@ -6,9 +6,11 @@ that the service isolates) written to a tlog and decoded once. Every case runs t
 daemon's pipeline, ``glmav_observer.app.Service.feed_message`` over every message (what
 ``replay`` does, without reading the file), to the end and until the Rerun sink has
 handed everything to Rerun; the baseline is the same run without sinks, measured in the
-same process. The added cost = (case − baseline) CPU time per message; CPU time is the
-process time (the sink's sender thread included): on a shared machine wall time moves
-with the load, CPU time much less. Medians over repeats.
+same process, in paired rounds (baseline, then every case; the added cost is the median
+over rounds of case − baseline of the same round). Costs are CPU time per message, the
+process time (the sink's sender thread and Rerun's threads included): on a shared
+machine wall time moves with the load, CPU time much less. common.time_per_call_s
+measures wall time only, hence this loop; it still gives the baseline's wall time.
 
 Cases: ``save`` (batched columns into an .rrd, what ``replay --rrd`` does); ``serve``
 (live, a gRPC server with no viewer attached, which buffers) at the default flush of
@@ -70,31 +72,19 @@ def _service_run(msgs: list[tuple[Any, float]], sink: RerunSink | None = None) -
     return records
 
 
-def _timed(fn: Callable[[], object], repeats: int) -> dict[str, float]:
-    """Median wall time (common.time_per_call_s) and median process CPU time of ``fn``."""
-    cpu: list[float] = []
-
-    def once() -> None:
-        c0 = time.process_time()
-        fn()
-        cpu.append(time.process_time() - c0)
-
-    t = time_per_call_s(once, number=1, repeats=repeats)
-    return {"wall_s": t["median_s"], "cpu_s": statistics.median(cpu[1:])}  # [0]: warm-up
+def _cpu_wall(fn: Callable[[], object]) -> tuple[float, float]:
+    """Process CPU time and wall time of one call of ``fn`` (s)."""
+    c0, t0 = time.process_time(), time.perf_counter()
+    fn()
+    return time.process_time() - c0, time.perf_counter() - t0
 
 
-def _sink_case(
-    msgs: list[tuple[Any, float]], mode: str, *, repeats: int, **options: Any
-) -> dict[str, float]:
-    """Wall and CPU time of the daemon's pipeline with a fresh Rerun sink, until sent."""
-
-    def once() -> None:
-        kwargs = dict(options)
-        if mode == "serve":
-            kwargs.update(grpc_port=_free_port(), web_port=None)
-        _service_run(msgs, open_rerun_sink(mode, max_queued_batches=1_000_000, **kwargs))
-
-    return _timed(once, repeats)
+def _sink_run(msgs: list[tuple[Any, float]], mode: str, options: dict[str, Any]) -> None:
+    """The daemon's pipeline with a fresh Rerun sink, until everything is sent."""
+    kwargs = dict(options)
+    if mode == "serve":
+        kwargs.update(grpc_port=_free_port(), web_port=None)
+    _service_run(msgs, open_rerun_sink(mode, max_queued_batches=1_000_000, **kwargs))
 
 
 def _received_bytes(records: list[Record], tmp: Path) -> int:
@@ -152,9 +142,6 @@ def run(quick: bool = False) -> dict[str, Any]:
         msgs = [(r.msg, r.t_host_us * 1e-6) for r in iter_tlog(tlog.read_bytes())]
         records = _service_run(msgs)
         n_msg, n_rec = len(msgs), len(records)
-        base = _timed(lambda: _service_run(msgs), repeats)
-        base_us = base["cpu_s"] / n_msg * 1e6
-
         cases: list[tuple[str, str, dict[str, Any]]] = [
             ("save (batched, replay --rrd)", f"save:{tmp / 'save.rrd'}", {}),
             ("serve live, default (flush 0.5 s, decimation 1)", "serve", {}),
@@ -167,10 +154,29 @@ def run(quick: bool = False) -> dict[str, Any]:
             ),
             ("serve live, flush 1.0 s", "serve", {"flush_period_s": 1.0}),
         ]
+        # Paired rounds: each round runs the baseline and then every case, and the added cost
+        # is the median over rounds of (case - baseline of the same round), so that a change
+        # of the machine's load between cases does not show as a cost.
+        base_cpu: list[float] = []
+        base_wall: list[float] = []
+        added: dict[str, list[float]] = {name: [] for name, _, _ in cases}
+        wall: dict[str, list[float]] = {name: [] for name, _, _ in cases}
+        _sink_run(msgs, "serve", {})  # warm-up (imports, first server)
+        for _ in range(repeats):
+            cpu_b, wall_b = _cpu_wall(lambda: _service_run(msgs))
+            base_cpu.append(cpu_b)
+            base_wall.append(wall_b)
+            for name, mode, options in cases:
+                cpu_c, wall_c = _cpu_wall(lambda m=mode, o=options: _sink_run(msgs, m, o))
+                added[name].append(cpu_c - cpu_b)
+                wall[name].append(wall_c)
+        base_us = statistics.median(base_cpu) / n_msg * 1e6
+        # the common helper's wall-clock median of the baseline, for reference
+        base_wall_tpc = time_per_call_s(lambda: _service_run(msgs), number=1, repeats=3)
         rows: list[dict[str, Any]] = [
             {
                 "case": "baseline: the daemon (app.Service) without sinks",
-                "wall_us_per_msg": base["wall_s"] / n_msg * 1e6,
+                "wall_us_per_msg": base_wall_tpc["median_s"] / n_msg * 1e6,
                 "cpu_us_per_msg": base_us,
                 "added_cpu_us_per_msg": 0.0,
                 "added_cpu_us_per_record": 0.0,
@@ -178,15 +184,14 @@ def run(quick: bool = False) -> dict[str, Any]:
             }
         ]
         results: dict[str, float] = {}
-        for name, mode, options in cases:
-            r = _sink_case(msgs, mode, repeats=repeats, **options)
-            added_us = r["cpu_s"] / n_msg * 1e6 - base_us
+        for name, _, _ in cases:
+            added_us = statistics.median(added[name]) / n_msg * 1e6
             results[name] = added_us
             rows.append(
                 {
                     "case": name,
-                    "wall_us_per_msg": r["wall_s"] / n_msg * 1e6,
-                    "cpu_us_per_msg": r["cpu_s"] / n_msg * 1e6,
+                    "wall_us_per_msg": statistics.median(wall[name]) / n_msg * 1e6,
+                    "cpu_us_per_msg": base_us + added_us,
                     "added_cpu_us_per_msg": added_us,
                     "added_cpu_us_per_record": added_us * n_msg / n_rec,
                     "added_ratio": added_us / base_us,
