@@ -1,0 +1,239 @@
+"""The soak: N simulated vehicles into one service over UDP loopback for a while.
+
+Each vehicle is a ``glmav-sitl run`` subprocess (real time, its own system id and seed,
+alternating scenarios) sending to one service in this process (``Service.run`` on
+``udpin:127.0.0.1:PORT`` in a thread, the shipped ``configs/service.toml`` with the cap
+raised to N). Measured:
+
+- RSS of this process (psutil) every second; growth = median of the last 5 samples over
+  the median of the 5 samples right after the warm-up;
+- in = out: samples emitted by ingest vs samples consumed by the estimators; frames the
+  simulators sent vs frames decoded + datagrams the kernel dropped (``/proc/net/udp``);
+  records produced vs records the sink received;
+- processing latency per datagram (arrival to its records handed to the sinks), p50/p99
+  per window of the run, to show it does not drift.
+"""
+
+from __future__ import annotations
+
+import re
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import psutil
+
+from glmav_observer.app import Service
+from glmav_observer.config import load_config
+from glmav_observer.estimation.vehicle import VehicleEstimator
+from glmav_observer.ingest.links import Link
+from glmav_observer.ingest.samples import AttitudeSample, ImuSample, TruthSample, VelocitySample
+from glmav_observer.records import Record
+
+REPO = Path(__file__).resolve().parents[2]
+SITL = str(Path(sys.executable).with_name("glmav-sitl"))
+SCENARIOS = ("cruise", "hover", "climbing-turn", "gusts")
+_SAMPLE_TYPES = (AttitudeSample, ImuSample, TruthSample, VelocitySample)
+
+
+class CountingSink:
+    """Counts records (keeps none: the soak must measure the service, not its test sink)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.closed = False
+
+    def write(self, record: Record) -> None:
+        self.n += 1
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def _udp_drops(ports: list[int]) -> int:
+    want = {f"0100007F:{p:04X}" for p in ports}
+    total = 0
+    with open("/proc/net/udp", encoding="ascii") as f:
+        for line in f.readlines()[1:]:
+            cols = line.split()
+            if cols[1] in want:
+                total += int(cols[-1])
+    return total
+
+
+def _pct(xs: list[float], q: float) -> float:
+    if not xs:
+        return float("nan")
+    s = sorted(xs)
+    return s[min(len(s) - 1, round(q * (len(s) - 1)))]
+
+
+def soak(
+    n_vehicles: int = 10,
+    duration_s: float = 60.0,
+    warmup_s: float = 15.0,
+    windows: int = 4,
+) -> dict[str, Any]:
+    """Run the soak; returns the measurements (see the module docstring).
+
+    One UDP link per vehicle (as one radio per vehicle on a ground station), so that the
+    service's SET_MESSAGE_INTERVAL requests reach each vehicle."""
+    links: dict[str, Link] = {}
+    ports: list[int] = []
+    # the design's streams (HIGHRES_IMU 250 Hz, ATTITUDE 100, LOCAL_POSITION_NED 30,
+    # SIM_STATE 50) without RAW_IMU/SCALED_IMU, which the service would ask to stop anyway
+    import glmav_sitl
+
+    sitl_toml = Path(glmav_sitl.__file__).with_name("data") / "sitl.toml"
+    text = re.sub(r"(?m)^(raw_imu|scaled_imu) = .*$", r"\1 = 0.0", sitl_toml.read_text())
+    tmp = tempfile.TemporaryDirectory(prefix="glmav-soak-")
+    sitl_cfg = Path(tmp.name) / "sitl.toml"
+    sitl_cfg.write_text(text, encoding="utf-8")
+    cfg = load_config(REPO / "configs" / "service.toml")
+    rates = dict(cfg.ingest.rates_hz)
+    rates.update({"RAW_IMU": -1.0, "SCALED_IMU": -1.0})  # HIGHRES_IMU is the one used
+    cfg = replace(cfg, ingest=replace(cfg.ingest, rates_hz=rates, max_vehicles=n_vehicles))
+    sink = CountingSink()
+    svc = Service(cfg, [sink])
+
+    # instrumentation: samples out of ingest, samples into the estimators, latency
+    counts = {"ingest_samples": 0, "estimator_samples": 0}
+    orig_on_message = svc.ingest.on_message
+
+    def on_message(msg: Any, t: float) -> list[Any]:
+        ev = orig_on_message(msg, t)
+        counts["ingest_samples"] += sum(isinstance(e, _SAMPLE_TYPES) for e in ev)
+        return ev
+
+    svc.ingest.on_message = on_message  # type: ignore[method-assign]
+    orig_on_sample = VehicleEstimator.on_sample
+
+    def on_sample(self: VehicleEstimator, s: Any) -> list[Record]:
+        counts["estimator_samples"] += 1
+        return orig_on_sample(self, s)
+
+    lat: list[tuple[float, float]] = []  # (wall since start, seconds)
+    orig_feed = svc.feed_bytes
+    t_start = time.monotonic()
+
+    def feed_bytes(link_id: str, data: bytes, t: float, *, datagram: bool = True) -> int:
+        t0 = time.perf_counter()
+        n = orig_feed(link_id, data, t, datagram=datagram)
+        lat.append((t0 - t_start_pc, time.perf_counter() - t0))
+        return n
+
+    t_start_pc = time.perf_counter()
+    svc.feed_bytes = feed_bytes  # type: ignore[method-assign]
+    VehicleEstimator.on_sample = on_sample  # type: ignore[method-assign]
+
+    for _ in range(n_vehicles):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            ports.append(int(s.getsockname()[1]))
+        links[f"udp{len(ports)}"] = Link(
+            f"udpin:127.0.0.1:{ports[-1]}", udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes
+        )
+    stop = threading.Event()
+    th = threading.Thread(target=svc.run, args=(links, stop), name="service", daemon=True)
+    proc_self = psutil.Process()
+    rss: list[tuple[float, int]] = []
+    procs: list[subprocess.Popen[str]] = []
+    sent = 0
+    try:
+        th.start()
+        for i in range(n_vehicles):
+            cmd = [SITL, "run", "--scenario", SCENARIOS[i % len(SCENARIOS)],
+                   "--duration", f"{duration_s:.1f}", "--speed", "realtime",
+                   "--seed", str(100 + i), "--sysid", str(i + 1), "--config", str(sitl_cfg),
+                   "--link", f"udpout:127.0.0.1:{ports[i]}"]  # fmt: skip
+            procs.append(
+                subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            )
+        t_start = time.monotonic()
+        while any(p.poll() is None for p in procs):
+            rss.append((time.monotonic() - t_start, proc_self.memory_info().rss))
+            time.sleep(1.0)  # the sampling period of RSS (the flights run meanwhile)
+            if time.monotonic() - t_start > duration_s + 120.0:
+                raise TimeoutError("simulators did not finish")
+        for p in procs:
+            out, err = p.communicate(timeout=30)
+            if p.returncode != 0:
+                raise RuntimeError(f"glmav-sitl failed: {err[-500:]}")
+            m = re.search(r"(\d+) messages", out)
+            if m is None:
+                raise RuntimeError(f"no summary line: {out[-300:]}")
+            sent += int(m.group(1))
+        # drain: everything sent is either decoded or dropped by the kernel
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            got = sum(d.counters.counts["frames_ok"] for d in svc.decoders.values())
+            if got + _udp_drops(ports) >= sent:
+                break
+            time.sleep(0.05)
+        drops = _udp_drops(ports)
+    finally:
+        stop.set()
+        th.join(10.0)
+        for lk in links.values():
+            lk.close()
+        VehicleEstimator.on_sample = orig_on_sample  # type: ignore[method-assign]
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+        svc.close()
+        tmp.cleanup()
+    summary = svc.summary()
+    frames_ok = sum(c.get("frames_ok", 0) for c in summary.link_counters.values())
+    after = [r for t, r in rss if t >= warmup_s]
+    if len(after) < 10:
+        raise ValueError("run longer than warm-up + 10 s to measure RSS growth")
+    rss_warm = statistics.median(after[:5])
+    rss_end = statistics.median(after[-5:])
+    lat_after = [(t, x) for t, x in lat if t >= warmup_s]
+    span = max(1e-9, duration_s - warmup_s)
+    win: list[dict[str, float]] = []
+    for k in range(windows):
+        a, b = warmup_s + k * span / windows, warmup_s + (k + 1) * span / windows
+        xs = [x for t, x in lat_after if a <= t < b]
+        win.append({
+            "from_s": a, "to_s": b, "datagrams": float(len(xs)),
+            "p50_ms": _pct(xs, 0.5) * 1e3, "p99_ms": _pct(xs, 0.99) * 1e3,
+            "max_ms": (max(xs) if xs else float("nan")) * 1e3,
+        })  # fmt: skip
+    all_lat = [x for _, x in lat_after]
+    rmse = {
+        sysid: (max(v.rmse_ned_mps["active"]) if v.rmse_ned_mps.get("active") else None)
+        for sysid, v in summary.vehicles.items()
+    }
+    return {
+        "n_vehicles": n_vehicles,
+        "duration_s": duration_s,
+        "warmup_s": warmup_s,
+        "rss_warm_mb": rss_warm / 2**20,
+        "rss_end_mb": rss_end / 2**20,
+        "rss_growth_pct": 100.0 * (rss_end - rss_warm) / rss_warm,
+        "rss_series_mb": [(round(t, 1), round(r / 2**20, 2)) for t, r in rss],
+        "sent_frames": sent,
+        "frames_ok": frames_ok,
+        "rejected_frames": summary.rejected_frames,
+        "kernel_drops": drops,
+        "messages": summary.messages,
+        "ingest_samples": counts["ingest_samples"],
+        "estimator_samples": counts["estimator_samples"],
+        "records": summary.records,
+        "sink_records": sink.n,
+        "vehicles": sorted(summary.vehicles),
+        "max_rmse_active_mps": rmse,
+        "latency_p50_ms": _pct(all_lat, 0.5) * 1e3,
+        "latency_p99_ms": _pct(all_lat, 0.99) * 1e3,
+        "latency_max_ms": (max(all_lat) if all_lat else float("nan")) * 1e3,
+        "latency_windows": win,
+        "datagrams_per_s": len(all_lat) / span,
+    }
