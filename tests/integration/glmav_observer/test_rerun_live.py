@@ -268,7 +268,8 @@ def test_gone_viewer_does_not_block_or_grow(free_tcp_port: Callable[[], int]) ->
     records = flight(30.0)
     me = psutil.Process()
     rss0 = me.memory_info().rss
-    sink = open_rerun_sink(f"connect:rerun+http://127.0.0.1:{dead}/proxy")
+    # a short flush period makes many small chunks: rerun's byte quota fills within the test
+    sink = open_rerun_sink(f"connect:rerun+http://127.0.0.1:{dead}/proxy", flush_period_s=0.05)
     max_queued = 0
     for i, r in enumerate(records):
         sink.write(r)
