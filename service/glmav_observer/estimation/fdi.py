@@ -95,9 +95,9 @@ class FdiConfig:
     missing_timeout_s: float = 0.3
     freeze_repeats: int = 3
     bias_samples: int = 6
-    bias_threshold_mps: float = 0.15
+    bias_threshold_mps: float = 0.18
     noise_samples: int = 12
-    noise_ratio_threshold: float = 8.0
+    noise_ratio_threshold: float = 12.0
     k_isolate: int = 3
     recovery_s: float = 2.0
     sigma_handover_mps: float = 0.03
@@ -131,16 +131,21 @@ class BiasFit:
     #: the IMU is fast enough to predict the velocity (``min_imu_rate_hz``)
     imu_ok: bool = True
     _since_fit: int = 0
+    #: vetted rows per axis in the window (an axis needs its own rows to be predicted)
+    rows_per_axis: list[int] = field(default_factory=lambda: [0, 0, 0])
+    #: axes whose V0 the last fit determined
+    fitted_axes: frozenset[int] = frozenset()
 
     def add(self, t_s: float, axis: int, z_mps: float, b_int: tuple[float, ...]) -> None:
         self.rows.append((t_s, axis, z_mps, b_int))
+        self.rows_per_axis[axis] += 1
         self._since_fit += 1
 
     def prune_and_fit(self, t_s: float) -> None:
         t_min = t_s - self.cfg.vet_delay_s - self.cfg.bias_window_s
         rows = self.rows
         while rows and rows[0][0] < t_min:
-            rows.popleft()
+            self.rows_per_axis[rows.popleft()[1]] -= 1
         if self._since_fit >= 6 or (not self.fitted and self._since_fit > 0):
             self._since_fit = 0
             self._fit()
@@ -166,6 +171,7 @@ class BiasFit:
             for k in present:
                 self.v0_mps[k] = float(zc[axes == k].mean())
             self.b_anchor = tuple(b0)
+            self.fitted_axes = frozenset(present)
             return
         X = np.zeros((n, 6))
         X[np.arange(n), axes] = 1.0
@@ -175,6 +181,7 @@ class BiasFit:
         self.bias_body_mps2 = theta[3:].tolist()
         self.b_anchor = tuple(b0)
         self.fitted = True
+        self.fitted_axes = frozenset(present)
 
     def params(self, axis: int) -> tuple[float, tuple[float, float, float], tuple[float, ...]]:
         """(V0_j, b̂, B anchor) for predictions of axis ``axis``."""
@@ -227,7 +234,10 @@ class AxisMonitor:
         if not self.fit.imu_ok:
             return False
         return self._frozen is not None or (
-            self.fit.fitted and self.fit.span_s() >= self.cfg.warmup_s
+            self.fit.fitted
+            and self.fit.span_s() >= self.cfg.warmup_s
+            and self.index in self.fit.fitted_axes
+            and self.fit.rows_per_axis[self.index] >= 10
         )
 
     def predict_mps(self, a_int_j: float, b_int: tuple[float, ...]) -> float:
@@ -279,6 +289,16 @@ class AxisMonitor:
             noise = statistics.median(d2) / nominal / cfg.noise_ratio_threshold
         return bias, noise
 
+    def _spread_ratio(self) -> float:
+        """Robust spread (1.4826 MAD) of the bias window over 3σ_y: a bias step keeps it
+        small (the window holds two clusters), a noise burst makes it large."""
+        rb = list(self._resid)[-self.cfg.bias_samples :]
+        if len(rb) < 3:
+            return 0.0
+        med = statistics.median(rb)
+        mad = statistics.median(abs(x - med) for x in rb)
+        return 1.4826 * mad / (3.0 * self.cfg.sigma_meas_mps)
+
     def update(
         self, t_s: float, y_mps: float, a_int_mps: float, b_int: tuple[float, ...]
     ) -> AxisVerdict:
@@ -328,7 +348,11 @@ class AxisMonitor:
             gated = abs(r) > cfg.gate_sigma * sigma_r
             failing = bias_ratio > 1.0 or noise_ratio > 1.0
             if failing:
-                kind = FaultKind.NOISE if noise_ratio > 1.0 else FaultKind.BIAS
+                kind = (
+                    FaultKind.NOISE
+                    if noise_ratio > 1.0 or self._spread_ratio() > 1.0
+                    else (FaultKind.BIAS)
+                )
                 self._fail_run += 1
                 self.state = AxisState.SUSPECT
                 if self._fail_run >= cfg.k_isolate:
@@ -378,7 +402,7 @@ class AxisMonitor:
             not repeated
             and math.isfinite(r)
             and abs(r) <= slack + 2.0 * cfg.sigma_meas_mps
-            and not (noise_ratio > 1.0)
+            and noise_ratio <= 1.0  # NaN (too few samples yet) is not healthy
             and not (bias_ratio * cfg.bias_threshold_mps > slack)
         )
         if not healthy:

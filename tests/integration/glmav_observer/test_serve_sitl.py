@@ -19,7 +19,9 @@ def test_active_estimate_rmse_against_sim_state(
     scenario: str, free_udp_port: Callable[[], int], tmp_path: Path
 ) -> None:
     run = run_live(scenario, port=free_udp_port(), tmp=tmp_path, duration_s=20.0, seed=3)
-    assert run.summary.link_counters["udp"]["frames_ok"] == run.sent_messages  # nothing lost
+    # nothing lost (the SITL also answers our SET_MESSAGE_INTERVAL with COMMAND_ACKs, which
+    # its message count leaves out)
+    assert run.summary.link_counters["udp"]["frames_ok"] >= run.sent_messages
     v = run.summary.vehicles[1]
     rmse = v.rmse_ned_mps["active"]
     assert rmse is not None and v.truth_samples > 500  # 17 s of SIM_STATE at 50 Hz
@@ -35,7 +37,7 @@ def test_replay_of_the_sitl_tlog_equals_the_live_run_and_is_byte_identical(
     free_udp_port: Callable[[], int], tmp_path: Path
 ) -> None:
     run = run_live("cruise", port=free_udp_port(), tmp=tmp_path, duration_s=12.0, seed=5)
-    assert run.summary.link_counters["udp"]["frames_ok"] == run.sent_messages
+    assert run.summary.link_counters["udp"]["frames_ok"] >= run.sent_messages
     replayed = MemorySink()
     replay_tlog(run.tlog, service_test_config(), [replayed])
     live_v = [flatten(r) for r in run.records if isinstance(r, VelocityRecord)]
