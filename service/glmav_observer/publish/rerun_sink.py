@@ -839,18 +839,19 @@ class RerunSink:
                     self._flush_vehicle(veh, final=True)
                 self._closed = True
             try:
-                self._queue.put(None, timeout=timeout_s)
+                self._queue.put(None, timeout=timeout_s if self._live else None)
             except queue.Full:
                 log.warning("rerun: sender queue full at close; dropping what is queued")
             if self._thread is not None:
-                self._thread.join(timeout_s)
+                # a file always drains: wait for it; a viewer may be gone: bounded wait
+                self._thread.join(timeout_s if self._live else None)
                 if self._thread.is_alive():
                     log.warning("rerun: the viewer did not take the data within %.0f s", timeout_s)
             if self._thread is None or not self._thread.is_alive():
                 # a gone viewer: rerun's flush raises after the timeout, and its disconnect
                 # waits up to 5 s more for a last connection attempt, then drops the data
                 try:
-                    rec.flush(timeout_sec=min(timeout_s, 2.0))
+                    rec.flush(timeout_sec=min(timeout_s, 2.0) if self._live else 600.0)
                 except Exception:
                     log.warning("rerun: flush at close failed", exc_info=True)
                 rec.disconnect()
