@@ -158,6 +158,12 @@ class Ingest:
         t_s = v.clock.to_boot_s(t_us, kind)
         if t_s is None:
             return events
+        try:  # a sample that cannot be used never touches the vehicle's clock
+            sample = to_sample(msg, t_s, v.raw_scale)
+        except ConversionError as err:
+            v.counters[err.reason] += 1
+            logger.debug("sample rejected", extra={"sysid": sysid, "reason": err.reason})
+            return events
         if name != "SIM_STATE":
             adm = v.clock.admit(name, t_s)
             if adm is Admission.RESET:
@@ -165,12 +171,6 @@ class Ingest:
                 v.imu_source = None
             elif adm not in (Admission.ACCEPT, Admission.REORDERED):
                 return events
-        try:
-            sample = to_sample(msg, t_s, v.raw_scale)
-        except ConversionError as err:
-            v.counters[err.reason] += 1
-            logger.debug("sample rejected", extra={"sysid": sysid, "reason": err.reason})
-            return events
         if isinstance(sample, ImuSample) and not self._imu_wanted(v, sample):
             return events
         v.rates.note(name, t_s)

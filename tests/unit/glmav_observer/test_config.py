@@ -1,0 +1,65 @@
+"""configs/service.toml: the shipped file equals the defaults; bad values name file, key, reason."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from glmav_observer.cli import main
+from glmav_observer.config import ConfigError, load_config, parse_config
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_shipped_file_documents_the_defaults() -> None:
+    shipped = load_config(REPO / "configs" / "service.toml")
+    defaults = load_config(None)
+    assert shipped.ingest == defaults.ingest
+    assert shipped.estimation == defaults.estimation
+    assert shipped.zenoh == defaults.zenoh
+    assert shipped.rerun == defaults.rerun
+    assert shipped.zenoh.enabled is False  # serve: Zenoh off unless asked
+    assert shipped.rerun.mode == "off"
+
+
+@pytest.mark.parametrize(
+    ("doc", "key", "reason"),
+    [
+        ({"fdi": {"bias_threshold_mps": -1.0}}, "fdi.bias_threshold_mps", "must be > 0"),
+        ({"fdi": {"k_isolate": "3"}}, "fdi.k_isolate", "expected int"),
+        ({"fdi": {"warmup_s": 0.5}}, "fdi.warmup_s", ">= 1.0"),
+        ({"estimation": {"e_form": "approx"}}, "estimation.e_form", "exact or small_angle"),
+        ({"estimation": {"gama_full": 3.0}}, "estimation.gama_full", "unknown key"),
+        ({"rates": {"hz": {"FOO": 10.0}}}, "rates.hz.FOO", "unknown message"),
+        ({"ingest": {"raw_imu": {"sysid": {"300": {}}}}}, "ingest.raw_imu.sysid.300", "1..255"),
+        ({"rerun": {"mode": "tv"}}, "rerun.mode", "must be off"),
+        ({"service": {"out": "x.txt"}}, "service.out", ".csv or .jsonl"),
+        ({"ingest": {"max_vehicles": True}}, "ingest.max_vehicles", "integer"),
+    ],
+)
+def test_bad_values_name_file_key_and_reason(doc: dict, key: str, reason: str) -> None:
+    with pytest.raises(ConfigError, match=reason) as info:
+        parse_config(doc, "my.toml")
+    assert info.value.file == "my.toml"
+    assert info.value.key == key
+
+
+def test_per_vehicle_raw_imu_scale() -> None:
+    cfg = parse_config({"ingest": {"raw_imu": {"sysid": {"2": {"accel_mps2_per_lsb": 0.5}}}}})
+    assert cfg.ingest.raw_imu_by_sysid[2].accel_mps2_per_lsb == 0.5
+    assert cfg.ingest.raw_imu_by_sysid[2].gyro_radps_per_lsb == 1e-3  # default kept
+
+
+def test_cli_exit_code_2_on_bad_config(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[fdi]\nk_isolate = 0\n", encoding="utf-8")
+    log = tmp_path / "x.tlog"
+    log.write_bytes(b"")
+    assert main(["replay", str(log), "--config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml" in err and "fdi.k_isolate" in err and "must be > 0" in err
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[fdi\n", encoding="utf-8")
+    assert main(["serve", "--config", str(broken)]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
