@@ -150,7 +150,9 @@ class Service:
     def decoder(self, link_id: str, *, datagram: bool = True) -> FrameDecoder:
         dec = self.decoders.get(link_id)
         if dec is None:
-            dec = self.decoders[link_id] = FrameDecoder(datagram=datagram)
+            dec = self.decoders[link_id] = FrameDecoder(
+                datagram=datagram, signing_key=self.config.signing_key
+            )
         return dec
 
     def feed_bytes(

@@ -74,6 +74,7 @@ class ServiceConfig:
     estimation: EstimatorConfig = field(default_factory=EstimatorConfig)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     rerun: RerunSettings = field(default_factory=RerunSettings)
+    signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing
     source: str = "<defaults>"
 
     def effective(self) -> dict[str, Any]:
@@ -89,6 +90,7 @@ class ServiceConfig:
             return x
 
         out: dict[str, Any] = plain(self)
+        out["signing_key"] = "<set>" if self.signing_key is not None else None  # never the key
         return out
 
 
@@ -282,6 +284,12 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         serve_bind=rr.get("serve_bind", str, "127.0.0.1"),
     )
     rr.done()
+    # [security] (issue #9): the MAVLink 2 signing key; only frames signed with it pass
+    sec = root.sub("security")
+    key_hex = sec.get("signing_key_hex", str, "")
+    key_file = sec.get("signing_key_file", str, "")
+    sec.done()
+    signing_key = _signing_key(file, key_hex, key_file)
     root.done()
     return ServiceConfig(
         service_id=service_id,
@@ -293,8 +301,35 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         estimation=estimation,
         zenoh=zenoh,
         rerun=rerun,
+        signing_key=signing_key,
         source=file,
     )
+
+
+def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:
+    """32 bytes from 64 hex digits, given inline or in a file (relative to ``file``)."""
+    if key_hex and key_file:
+        raise ConfigError(
+            file, "security.signing_key_file", "give the key inline or as a file, not both"
+        )
+    where = "security.signing_key_hex"
+    text = key_hex
+    if key_file:
+        where = "security.signing_key_file"
+        kp = Path(key_file) if Path(key_file).is_absolute() else Path(file).parent / key_file
+        try:
+            text = kp.read_text(encoding="ascii").strip()
+        except (OSError, UnicodeDecodeError) as err:
+            raise ConfigError(file, where, f"cannot read {kp}: {err}") from None
+    if not text:
+        return None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise ConfigError(file, where, "must be 64 hexadecimal digits") from None
+    if len(key) != 32:
+        raise ConfigError(file, where, f"must be 32 bytes (64 hex digits), got {len(key)}")
+    return key
 
 
 def check_rerun_mode(mode: str) -> str | None:
