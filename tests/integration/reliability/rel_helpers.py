@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -12,7 +13,6 @@ from typing import Any
 
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
-from glmav_observer.ingest.framing import FrameDecoder
 from glmav_observer.ingest.links import Link
 from glmav_observer.publish.sink import Sink
 from glmav_observer.records import Record, VelocityRecord
@@ -57,11 +57,11 @@ def live_service(
     sinks: Sequence[Sink] = (),
     signing_key: bytes | None = None,
 ) -> Iterator[LiveService]:
-    svc = Service(config or ServiceConfig(request_rates=False), sinks)
-    link = Link(conn)
+    cfg = config or ServiceConfig(request_rates=False)
     if signing_key is not None:
-        # until the daemon's config has a key: the decoder of this link verifies signatures
-        svc.decoders[conn] = FrameDecoder(datagram=link.datagram, signing_key=signing_key)
+        cfg = dataclasses.replace(cfg, signing_key=signing_key)
+    svc = Service(cfg, sinks)
+    link = Link(conn)
     stop = threading.Event()
     live = LiveService(svc, link, threading.Thread(target=lambda: None), stop)
 

@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from rel_helpers import live_service, sitl_thread, udp_drops, wait_until
 
+from glmav_observer.config import ConfigError, load_config
 from glmav_observer.ingest.framing import FrameDecoder
 from support.fuzzgen import sitl_stream
 
@@ -69,14 +71,18 @@ def test_decoder_accepts_only_frames_signed_with_its_key() -> None:
 
 
 @pytest.mark.timeout(90)
-def test_service_with_a_key_ignores_injected_frames(free_udp_port: Callable[[], int]) -> None:
+def test_service_with_a_key_ignores_injected_frames(
+    free_udp_port: Callable[[], int], tmp_path: Path
+) -> None:
     """The vehicle signs; an intruder on the same port sends unsigned and wrongly signed
     frames with the vehicle's system id from another flight. With the key, the service
     estimates the true vehicle only, and counts every intruding frame."""
     port = free_udp_port()
     conn = f"udpin:127.0.0.1:{port}"
     out = f"udpout:127.0.0.1:{port}"
-    with live_service(conn, signing_key=KEY) as live:
+    cfg = load_config(_key_config(tmp_path, f'signing_key_hex = "{KEY.hex()}"'))
+    assert cfg.signing_key == KEY
+    with live_service(conn, config=cfg) as live:
         with (
             sitl_thread("cruise", [out], duration_s=6.0, speed=1.0, seed=2, signing_key=KEY) as (
                 _,
@@ -122,3 +128,28 @@ def test_service_with_a_key_ignores_injected_frames(free_udp_port: Callable[[], 
     assert rmse is not None and max(rmse) <= 0.1, (rmse, v)
     assert v.truth_samples > 100  # 6 s of SIM_STATE at 50 Hz, minus 3 s of settling
     assert v.counters.get("clock_reset", 0) == 0
+
+
+def _key_config(tmp: Path, line: str) -> Path:
+    p = tmp / "service.toml"
+    p.write_text(f"[rates]\nrequest = false\n\n[security]\n{line}\n", encoding="utf-8")
+    return p
+
+
+def test_signing_key_configuration(tmp_path: Path) -> None:
+    assert load_config(None).signing_key is None
+    (tmp_path / "key.hex").write_text(KEY.hex() + "\n", encoding="ascii")
+    cfg = load_config(_key_config(tmp_path, 'signing_key_file = "key.hex"'))
+    assert cfg.signing_key == KEY
+    # the effective configuration (served on Zenoh) never carries the key
+    assert cfg.effective()["signing_key"] == "<set>"
+    assert KEY.hex() not in repr(cfg.effective()) and KEY.hex() not in repr(cfg)
+    for line, reason in (
+        ('signing_key_hex = "abcd"', "32 bytes"),
+        ('signing_key_hex = "zz"', "hexadecimal"),
+        ('signing_key_file = "missing.hex"', "cannot read"),
+    ):
+        with pytest.raises(ConfigError, match=reason) as err:
+            load_config(_key_config(tmp_path, line))
+        assert str(tmp_path / "service.toml") in str(err.value)
+        assert "security.signing_key" in str(err.value)
