@@ -166,3 +166,41 @@ def test_each_fault_isolated_switched_without_jump(kind: str, axis: int) -> None
     v_true = _truth(rec.t_boot_s)[0]
     assert rec.sigma_lost_mps is not None
     assert abs(rec.v_ned_mps[axis] - v_true[axis]) <= 3.0 * rec.sigma_lost_mps
+
+
+@pytest.mark.parametrize("spike_mps", [1.0, -3.0, 10.0])
+def test_one_outlier_does_not_switch(spike_mps: float) -> None:
+    """Hysteresis: a single wild sample is gated out of `full` and isolates nothing."""
+    hit: list[float] = []
+
+    def spike(t: float, y: np.ndarray) -> np.ndarray:
+        if t >= 5.0 and not hit:
+            hit.append(t)
+            return y + np.array([spike_mps, 0.0, 0.0])
+        return y
+
+    est, recs = run(flight(8.0, seed=9, fault=spike))
+    assert hit  # the outlier was sent
+    assert est.faults == []
+    assert est.switches == []
+    # gated: the active estimate never moves by the outlier (30 Hz samples, gamma 12:
+    # an ungated 1 m/s sample would move `full` by ~0.3 m/s)
+    err = [
+        abs(r.v_ned_mps[0] - _truth(r.t_boot_s)[0][0])
+        for r in _active(recs)
+        if 4.9 < r.t_boot_s < 5.5
+    ]
+    assert max(err) < 0.1  # healthy error ~0.02 (3 sigma 0.07)
+
+
+def test_recovery_after_the_axis_is_healthy_again() -> None:
+    """A dropout from 4 s to 5 s: isolated, then `full` again ~recovery_s after it ends."""
+    fault = lambda t, y: np.where((np.arange(3) == 2) & (4.0 <= t < 5.0), np.nan, y)  # noqa: E731
+    est, _ = run(flight(9.0, seed=2, fault=fault))
+    assert [f.kind for f in est.faults] == ["dropout"]
+    assert [s.to_config for s in est.switches] == ["c1", "full"]
+    back = est.switches[1]
+    # recovery_s = 2 s of healthy samples, counted once the noise test has a full window
+    # again (13 residuals at 30 Hz = 0.43 s)
+    assert 5.0 + 2.0 <= back.t_boot_s <= 5.0 + 2.0 + 0.45 + 0.05
+    assert back.jump_mps is not None and back.jump_mps <= 0.05
