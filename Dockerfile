@@ -91,4 +91,7 @@ HEALTHCHECK --interval=30s --timeout=15s --start-period=30s --retries=3 \
     CMD ["python", "/opt/glmav/healthcheck.py"]
 
 ENTRYPOINT ["glmav-observer"]
-CMD ["serve", "--config", "/etc/glmav-observer/service.toml"]
+# The default command matches compose and the health check: publish through the router
+# of configs/zenoh/client-router.json5 (it exits with a clear error when none answers).
+CMD ["serve", "--config", "/etc/glmav-observer/service.toml", \
+     "--zenoh", "/etc/glmav-observer/zenoh/client-router.json5"]
