@@ -465,6 +465,9 @@ if out="$(podman exec -e GLMAV_HEALTH=observer -e GLMAV_SERVICE_ID="$service_id"
     fail "the observer stopped but the health probe still says: $out"
 fi
 log "observer stopped -> probe for '$service_id': ${out}"
+if [[ $KEEP -eq 1 ]]; then
+    "${COMPOSE[@]}" start observer >>"$WORK/compose.log" 2>&1 || fail "compose start observer"
+fi
 T_STACK=$(($(date +%s) - t))
 
 summary
