@@ -35,6 +35,12 @@ from glmav_observer.ingest.samples import ImuSample, ImuSource, Sample
 
 logger = logging.getLogger(__name__)
 
+_IMU_SOURCE: dict[str, ImuSource] = {
+    "RAW_IMU": ImuSource.RAW_IMU,
+    "SCALED_IMU": ImuSource.SCALED_IMU,
+    "HIGHRES_IMU": ImuSource.HIGHRES_IMU,
+}
+
 
 @dataclass(frozen=True, slots=True)
 class VehicleReset:
@@ -157,6 +163,15 @@ class Ingest:
         t_us, kind = message_time_us(msg)
         t_s = v.clock.to_boot_s(t_us, kind)
         if t_s is None:
+            return events
+        src = _IMU_SOURCE.get(name)
+        if (
+            src is not None
+            and v.imu_source is not None
+            and src < v.imu_source
+            and t_s - v.imu_source_t_s <= self.config.imu_fallback_s
+        ):
+            v.counters["imu_superseded"] += 1  # a better IMU message is streaming: not decoded
             return events
         try:  # a sample that cannot be used never touches the vehicle's clock
             sample = to_sample(msg, t_s, v.raw_scale)
