@@ -275,6 +275,7 @@ def to_markdown(result: dict[str, Any]) -> str:
             f"atheris (libFuzzer, coverage-guided, same path, datagram and stream framing): "
             f"{ath['runs']:,} runs in {ath['wall_s']:.0f} s, exit code {ath['returncode']}, "
             f"{ath['coverage_edges']} coverage edges."
+            + (f" ({ath['tail']})" if ath.get("tail") else "")
         )
     else:
         lines.append("atheris: not installed in this environment (hypothesis runs in CI).")
