@@ -61,6 +61,9 @@ import numpy as np
 
 from glmav_observer.records import NED_AXES, AxisName, FaultEvent
 
+#: Vetted samples of a recovered axis before its prediction comes from the live fit again
+#: (> the 6 rows between two fits, and enough to pin its V0: 20 samples = 0.67 s at 30 Hz).
+REARM_ROWS = 20
 #: Median of the χ² distribution with one degree of freedom.
 CHI2_1_MEDIAN = 0.45494
 
@@ -146,7 +149,7 @@ class BiasFit:
         rows = self.rows
         while rows and rows[0][0] < t_min:
             self.rows_per_axis[rows.popleft()[1]] -= 1
-        if self._since_fit >= 6 or (not self.fitted and self._since_fit > 0):
+        if self._since_fit >= 15 or (not self.fitted and self._since_fit > 0):
             self._since_fit = 0
             self._fit()
 
@@ -227,6 +230,7 @@ class AxisMonitor:
     _t_last_vetted_s: float | None = None
     _frozen: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
     _fault_level_mps: float = 0.0  # |median residual| when a bias fault was isolated
+    _rearm_rows: int = 0
 
     # ------------------------------------------------------------------ reference
     def armed(self) -> bool:
@@ -259,8 +263,12 @@ class AxisMonitor:
         )
 
     def vet(self, t_s: float) -> None:
-        """Move pending samples older than the vetting delay into the shared fit."""
-        if self._frozen is not None:
+        """Move pending samples older than the vetting delay into the shared fit.
+
+        After a recovery the frozen prediction is kept until ``REARM_ROWS`` new samples of
+        this axis are in the fit (the fit has then been refreshed with them).
+        """
+        if self.fault is not None:
             return
         limit = t_s - self.cfg.vet_delay_s
         pend = self._pending
@@ -269,6 +277,10 @@ class AxisMonitor:
             if clean:
                 self.fit.add(tp, self.index, zp, bp)
                 self._t_last_vetted_s = tp
+                if self._frozen is not None:
+                    self._rearm_rows += 1
+                    if self._rearm_rows >= REARM_ROWS:
+                        self._frozen = None
 
     # ------------------------------------------------------------------ tests
     def _ratios(self) -> tuple[float, float]:
@@ -415,7 +427,7 @@ class AxisMonitor:
         if t_s - self._healthy_since_s >= cfg.recovery_s:
             self.state = AxisState.OK
             self.fault = None
-            self._frozen = None  # the fit refreshes as samples after recovery are vetted
+            self._rearm_rows = 0  # the frozen prediction is kept until the fit is refreshed
             self._resid.clear()
             return AxisVerdict(True, r, ratio, self.state)
         return AxisVerdict(False, r, ratio, self.state)
