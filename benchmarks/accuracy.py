@@ -45,7 +45,7 @@ from benchmarks.baselines import (
     RawMeasurement,
     earth_accel_mps2,
 )
-from benchmarks.common import format_goals, format_table, goal, main_for
+from benchmarks.common import format_goals, format_table, goal, main_for, write_result
 from benchmarks.paper import tlog_samples
 from glmav_observer.config import load_config
 from glmav_observer.estimation.vehicle import VehicleEstimator
@@ -61,6 +61,7 @@ from glmav_observer.records import CONFIGS, LOST_AXIS_OF_CONFIG, NED_AXES, Veloc
 FloatArray = NDArray[np.float64]
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "accuracy.md"
+RESULTS = Path(__file__).resolve().parent / "results" / "accuracy.json"
 NOMINAL = ("hover", "cruise", "climbing-turn", "gusts", "launch")
 VELOCITY_FAULTS = ("dropout", "freeze", "bias", "noise")
 BODY_AXES = ("x", "y", "z")
@@ -433,6 +434,15 @@ def summarise(results: list[dict[str, Any]], case_list: list[Case]) -> dict[str,
         faults.append(row)
     hours = sum(r["duration_s"] for r in results) / 3600.0
     n_false = sum(r["false_isolations"] for r in results)
+    no_acc = [r for r in results if r.get("fault", {}).get("kind") != "accel_bias"]
+    hours_na = sum(r["duration_s"] for r in no_acc) / 3600.0
+    n_false_na = sum(r["false_isolations"] for r in no_acc)
+    worse_faults = [
+        {"scenario": row["scenario"], "metric": m, "bank": row[f"bank {m}"], "kf": row[f"kf {m}"]}
+        for row in faults
+        for m in ("+1s", "+5s", "+10s")
+        if row[f"bank {m}"] > TIE * row[f"kf {m}"]
+    ]
     return {
         "nominal": nominal,
         "faults": faults,
@@ -440,6 +450,12 @@ def summarise(results: list[dict[str, Any]], case_list: list[Case]) -> dict[str,
         "false_isolations": n_false,
         "flight_hours": hours,
         "false_isolations_per_hour": n_false / hours if hours > 0 else math.nan,
+        "false_isolations_no_accel_fault": n_false_na,
+        "flight_hours_no_accel_fault": hours_na,
+        "false_isolations_per_hour_no_accel_fault": n_false_na / hours_na
+        if hours_na > 0
+        else math.nan,
+        "faults_bank_worse": worse_faults,
     }
 
 
@@ -470,7 +486,19 @@ def run(quick: bool = False) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     failed = [r for r in results if "error" in r]
     results = [r for r in results if "error" not in r]
-    case_list = [c for c in case_list if any(r["case"] == c.label for r in results)]
+    result = finish(results, quick=quick, seeds=seeds, wall_s=wall, workers=workers)
+    result["failed_runs"] = failed
+    result["skipped_runs"] = skipped
+    DOC.parent.mkdir(parents=True, exist_ok=True)
+    DOC.write_text(to_markdown(result) + "\n", encoding="utf-8")
+    return result
+
+
+def finish(
+    results: list[dict[str, Any]], *, quick: bool, seeds: list[int], wall_s: float, workers: int
+) -> dict[str, Any]:
+    """Summary, goals and the result dict from the per-run results."""
+    case_list = [c for c in cases(quick) if any(r["case"] == c.label for r in results)]
     summary = summarise(results, case_list)
     ratios = [v["ratio"] for v in summary["verdict"]]
     delays = [r["isolation_delay_s"] for r in results if r.get("isolation_delay_s") is not None]
@@ -478,44 +506,23 @@ def run(quick: bool = False) -> dict[str, Any]:
     b10 = [r["faulty_axis_error_after_mps"]["+10s"]["bank:active"] for r in vel_runs]
     k10 = [r["faulty_axis_error_after_mps"]["+10s"]["kf:full"] for r in vel_runs]
     goals = [
-        goal(
-            "bank/KF measured-axis RMSE, worst (scenario, config)",
-            max(ratios),
-            TIE,
-            higher_is_better=False,
-        ),
-        goal(
-            "bank/KF measured-axis RMSE, median",
-            float(np.median(ratios)),
-            1.0,
-            higher_is_better=False,
-        ),
-        goal(
-            "false isolations per flight hour",
-            summary["false_isolations_per_hour"],
-            1.0,
-            higher_is_better=False,
-        ),
-    ]
+        goal("bank/KF measured-axis RMSE, worst (scenario, config)", max(ratios), TIE,
+             higher_is_better=False),
+        goal("bank/KF measured-axis RMSE, median", float(np.median(ratios)), 1.0,
+             higher_is_better=False),
+        goal("false isolations per flight hour, all flights", summary["false_isolations_per_hour"],
+             1.0, higher_is_better=False),
+        goal("false isolations per flight hour, flights without an accelerometer fault",
+             summary["false_isolations_per_hour_no_accel_fault"], 1.0, higher_is_better=False),
+    ]  # fmt: skip
     if delays:
-        goals.append(
-            goal(
-                "fault isolation delay, median (s)",
-                float(np.median(delays)),
-                1.0,
-                higher_is_better=False,
-            )
-        )
+        goals.append(goal("velocity fault isolation delay, median (s)", float(np.median(delays)),
+                          1.0, higher_is_better=False))  # fmt: skip
     if b10:
-        goals.append(
-            goal(
-                "faulty-axis error +10 s, bank/KF (median over runs)",
-                float(np.median(b10) / max(np.median(k10), 1e-12)),
-                1.0,
-                higher_is_better=False,
-            )
-        )
-    result = {
+        goals.append(goal("faulty-axis error +10 s, bank/KF (median over runs)",
+                          float(np.median(b10) / max(float(np.median(k10)), 1e-12)), 1.0,
+                          higher_is_better=False))  # fmt: skip
+    return {
         "name": "accuracy",
         "quick": quick,
         "seeds": seeds,
@@ -523,14 +530,24 @@ def run(quick: bool = False) -> dict[str, Any]:
         "goals": goals,
         "summary": summary,
         "runs": results,
-        "failed_runs": failed,
-        "skipped_runs": skipped,
-        "wall_s": wall,
+        "failed_runs": [],
+        "skipped_runs": [],
+        "wall_s": wall_s,
         "workers": workers,
     }
-    DOC.parent.mkdir(parents=True, exist_ok=True)
-    DOC.write_text(to_markdown(result) + "\n", encoding="utf-8")
-    return result
+
+
+def rebuild_docs(path: Path | None = None) -> None:
+    """Regenerate docs/benchmarks/accuracy.md from ``results/accuracy.json`` (no rerun)."""
+    import json
+
+    old = json.loads((path or RESULTS).read_text(encoding="utf-8"))
+    res = finish(old["runs"], quick=old["quick"], seeds=old["seeds"], wall_s=old["wall_s"],
+                 workers=old["workers"])  # fmt: skip
+    res["failed_runs"] = old.get("failed_runs", [])
+    res["skipped_runs"] = old.get("skipped_runs", [])
+    write_result(res)
+    DOC.write_text(to_markdown(res) + "\n", encoding="utf-8")
 
 
 def to_markdown(result: dict[str, Any]) -> str:
@@ -587,7 +604,16 @@ def to_markdown(result: dict[str, Any]) -> str:
         format_table(s["faults"]),
         "",
         f"False isolations: {s['false_isolations']} in {s['flight_hours']:.3f} flight hours "
-        f"= {s['false_isolations_per_hour']:.2f} per hour.",
+        f"= {s['false_isolations_per_hour']:.2f} per hour; without the accelerometer-fault flights "
+        f"{s['false_isolations_no_accel_fault']} in {s['flight_hours_no_accel_fault']:.3f} h "
+        f"= {s['false_isolations_per_hour_no_accel_fault']:.2f} per hour.",
+        "",
+        "An accelerometer bias step (0.3 m/s² on one body axis) is not a velocity-sensor",
+        "fault, but the FDI isolates velocity axes for it (kind 'bias', 0.6-0.9 s after the",
+        "step, then one or two more axes within 10 s): the residual y − ∫E f dt of every",
+        "axis ramps with the bias, and each axis is tested alone. The active estimate then",
+        "dead-reckons with the biased accelerometer, which is why its error in those rows",
+        "reaches metres per second. Those isolations are counted as false above.",
     ]
     if result.get("skipped_runs"):
         lines += [
@@ -603,9 +629,23 @@ def to_markdown(result: dict[str, Any]) -> str:
             f"- {v['scenario']} / {v['config']}: bank/KF RMSE = {v['ratio']:.3g}" for v in worse
         ]
     else:
-        lines += ["- nowhere in this run (measured axes, every scenario and configuration)."]
+        lines += [
+            "- Measured axes: nowhere in this run (every nominal scenario and configuration)."
+        ]
+    wf = s.get("faults_bank_worse", [])
+    if wf:
+        lines += [
+            f"- {w['scenario']}, faulty-axis error {w['metric']}: bank {w['bank']:.3g} m/s, "
+            f"KF {w['kf']:.3g} m/s"
+            for w in wf
+        ]
+    else:
+        lines += ["- Faulty axis after a fault (+1/+5/+10 s): nowhere in this run."]
     return "\n".join(lines)
 
 
 if __name__ == "__main__":
+    if sys.argv[1:] == ["--docs-only"]:
+        rebuild_docs()
+        sys.exit(0)
     sys.exit(main_for(sys.modules[__name__]))
