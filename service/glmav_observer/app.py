@@ -145,6 +145,7 @@ class Service:
         self._closed = False
         self.on_records: Callable[[list[Record]], None] | None = None
         self._first_requests: list[int] = []
+        self._links: dict[str, Link] = {}
 
     # ------------------------------------------------------------------ input
     def decoder(self, link_id: str, *, datagram: bool = True) -> FrameDecoder:
@@ -244,13 +245,24 @@ class Service:
         *,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        """Serve ``links`` (id -> open link) until ``stop_event`` is set."""
-        by_fd = {lk.fileno(): (lid, lk) for lid, lk in links.items()}
+        """Serve ``links`` (id -> open link) until ``stop_event`` is set.
+
+        Descriptors are mapped to links on every turn: a TCP link that went down has none
+        until its ``read`` has reconnected it.
+        """
+        self._links = links
         next_rate_check = clock()
         while not stop_event.is_set():
+            by_fd: dict[int, tuple[str, Link]] = {}
+            for lid, lk in links.items():
+                fd = lk.fileno()
+                if fd is None:
+                    lk.read()  # down: try to reconnect (with backoff)
+                else:
+                    by_fd[fd] = (lid, lk)
             try:
                 ready, _, _ = select.select(list(by_fd), [], [], 0.05)
-            except InterruptedError:
+            except (InterruptedError, ValueError, OSError):
                 continue
             for fd in ready:
                 lid, lk = by_fd[fd]
@@ -291,7 +303,14 @@ class Service:
         return ServiceSummary(
             vehicles=vehicles,
             link_counters={k: d.counters.as_dict() for k, d in sorted(self.decoders.items())},
-            service_counters=dict(sorted((self.counters + self.ingest.counters).items())),
+            service_counters=dict(
+                sorted(
+                    sum(
+                        (lk.counters for lk in self._links.values()),
+                        self.counters + self.ingest.counters,
+                    ).items()
+                )
+            ),
             records=self.records,
             messages=self.messages,
         )

@@ -14,7 +14,8 @@ A vehicle reboot sends time back to near zero. A single sample far in the past (
 far in the future) is much more likely a corrupt one, so a new timeline is adopted
 only when ``confirm_samples`` consecutive samples agree on it (``RESET``: the caller
 restarts that vehicle's bank); until then they are dropped and counted
-(``time_backwards`` / ``time_jump``). Gaps longer than ``gap_s`` are counted and
+(``time_backwards`` / ``time_jump``, or ``late`` when less than ``reset_backwards_s``
+back: a vehicle rebooted soon after its previous boot is confirmed the same way). Gaps longer than ``gap_s`` are counted and
 reported.
 
 ``time_usec`` larger than ``EPOCH_THRESHOLD_US`` (2001-09-09 as a UNIX time; 31 years
@@ -109,7 +110,22 @@ class VehicleClock:
                 return Admission.RESET
             self.counters["time_backwards" if t_s < now else "time_jump"] += 1
             return Admission.PENDING
-        self._pending.clear()
+        if t_s < now - cfg.latency_window_s:
+            # older than the window: late, unless ``confirm_samples`` in a row agree on a
+            # new timeline (a vehicle rebooted less than ``reset_backwards_s`` after boot)
+            self._pending.append(t_s)
+            p = self._pending
+            if len(p) >= cfg.confirm_samples and max(p) - min(p) <= cfg.reset_backwards_s:
+                self.counters["clock_reset"] += 1
+                self._pending = []
+                self._last_t_by_stream.clear()
+                self.t_now_s = None
+                self.epoch_offset_us = None
+                self._adopt(stream, t_s)
+                return Admission.RESET
+            self.counters["late"] += 1
+            return Admission.LATE
+        self._pending.clear()  # a sample on the current timeline
         last = self._last_t_by_stream.get(stream)
         if last is not None and t_s == last:
             self.counters["duplicate"] += 1
@@ -123,12 +139,9 @@ class VehicleClock:
                 self.gaps.append((now, t_s))
             self._adopt(stream, t_s)
             return Admission.ACCEPT
-        if t_s >= now - cfg.latency_window_s:
-            self.counters["reordered"] += 1
-            self._last_t_by_stream[stream] = t_s
-            return Admission.REORDERED
-        self.counters["late"] += 1
-        return Admission.LATE
+        self.counters["reordered"] += 1
+        self._last_t_by_stream[stream] = t_s
+        return Admission.REORDERED
 
     def _adopt(self, stream: str, t_s: float) -> None:
         self.t_now_s = t_s

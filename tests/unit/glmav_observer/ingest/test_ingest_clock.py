@@ -74,3 +74,21 @@ def test_epoch_time_usec_mapped_to_boot_time() -> None:
     # SYSTEM_TIME gives the exact offset
     c.note_system_time(unix_us + 1_000_000, 13_500)  # unix - boot = unix_us - 12.5 s
     assert abs((c.to_boot_s(unix_us, TimeKind.USEC) or 0.0) - 12.5) < 1e-9
+
+
+def test_reboot_soon_after_boot_is_confirmed_too() -> None:
+    """Back by less than reset_backwards_s (a reboot 1.5 s after boot): still a reset."""
+    c = _clock(confirm_samples=3, reset_backwards_s=2.0, latency_window_s=0.05)
+    for t in (1.0, 1.2, 1.5):
+        c.admit("A", t)
+    out = [c.admit(s, t) for s, t in (("A", 0.01), ("B", 0.02), ("A", 0.03))]
+    assert out == [Admission.LATE, Admission.LATE, Admission.RESET]
+    assert c.counters["clock_reset"] == 1
+    # an isolated late sample among good ones is only late
+    c2 = _clock(confirm_samples=3)
+    for t in (1.0, 1.2, 1.5, 1.6):
+        c2.admit("A", t)
+    assert c2.admit("B", 0.5) is Admission.LATE
+    assert c2.admit("A", 1.7) is Admission.ACCEPT
+    assert c2.admit("B", 0.6) is Admission.LATE
+    assert c2.counters["clock_reset"] == 0
