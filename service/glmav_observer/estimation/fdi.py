@@ -428,6 +428,15 @@ class AxisMonitor:
             self.state = AxisState.OK
             self.fault = None
             self._rearm_rows = 0  # the frozen prediction is kept until the fit is refreshed
+            rb = list(self._resid)[-cfg.bias_samples :]
+            if self._frozen is not None and rb:
+                # Re-anchor the frozen prediction on the measurement: the axis has passed
+                # every test for recovery_s, so what still separates it from the dead
+                # reckoning is the dead reckoning's drift since isolation (grown with the
+                # residual accelerometer bias), not a sensor fault. Kept as it was, that
+                # drift would read as a bias step and isolate the axis again.
+                v0, b, anchor = self._frozen
+                self._frozen = (v0 + statistics.median(rb), b, anchor)
             self._resid.clear()
             return AxisVerdict(True, r, ratio, self.state)
         return AxisVerdict(False, r, ratio, self.state)
