@@ -128,7 +128,7 @@ def run_demo(
     fault_axis: str = "e",
     fault_kind: str = "bias",
     fault_at_s: float = 12.0,
-    fault_length_s: float = 6.0,
+    fault_length_s: float = 4.0,
     speed: str = "auto",
     seed: int = 1,
     rerun_mode: str = "spawn",
@@ -305,7 +305,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--fault-kind", choices=FAULT_KINDS, default="bias")
     p.add_argument("--fault-at", type=float, default=12.0, help="fault onset, s (12)")
     p.add_argument(
-        "--fault-length", type=float, default=6.0, help="fault duration, s (6); then recovery"
+        "--fault-length", type=float, default=4.0, help="fault duration, s (4); then recovery"
     )
     p.add_argument(
         "--speed",
