@@ -69,10 +69,21 @@ class DemoResult:
 
 
 def scenario_toml(
-    duration_s: float, fault_axis: str, fault_kind: str, fault_at_s: float, fault_end_s: float
+    duration_s: float,
+    fault_axis: str,
+    fault_kind: str,
+    fault_at_s: float,
+    fault_end_s: float,
+    *,
+    magnitude: float | None = None,
+    name: str = "demo",
 ) -> str:
-    """A climbing turn (3 m/s, 0.3 rad/s, climbing 0.5 m/s) with one velocity fault."""
-    return f"""name = "demo"
+    """A climbing turn (3 m/s, 0.3 rad/s, climbing 0.5 m/s) with one velocity fault.
+
+    ``magnitude``: m/s of a bias or a noise burst (default :data:`FAULT_MAGNITUDE`).
+    """
+    size = FAULT_MAGNITUDE[fault_kind] if magnitude is None else magnitude
+    return f"""name = "{name}"
 description = "Climbing turn with a {fault_kind} fault on LOCAL_POSITION_NED v{fault_axis} from {fault_at_s:g} s to {fault_end_s:g} s (glmav-observer demo)"
 duration_s = {duration_s:g}
 
@@ -97,7 +108,7 @@ axis = "{fault_axis}"
 kind = "{fault_kind}"
 t_start_s = {fault_at_s:g}
 t_end_s = {fault_end_s:g}
-magnitude = {FAULT_MAGNITUDE[fault_kind]:g}
+magnitude = {size:g}
 """
 
 

@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from glmav_observer.estimation.observer import e_exact
 from glmav_observer.records import (
     CONFIGS,
     NED_AXES,
@@ -276,23 +277,8 @@ def build_blueprint(sysids: Sequence[int]) -> rrb.Blueprint:
 # --------------------------------------------------------------------------- pure math
 
 
-def body_to_ned_matrix(euler_rad: Sequence[float]) -> npt.NDArray[np.float64]:
-    """E(φ, θ, ψ) of equation (13): the ZYX body(FRD)-to-earth(NED) rotation matrix."""
-    phi, theta, psi = euler_rad
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    return np.array(
-        [
-            [ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-            [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-            [-st, sf * ct, cf * ct],
-        ]
-    )
-
-
 def quaternion_xyzw(euler_rad: Sequence[float]) -> tuple[float, float, float, float]:
-    """The unit quaternion (x, y, z, w) of the same ZYX rotation as :func:`body_to_ned_matrix`."""
+    """The unit quaternion (x, y, z, w) of the ZYX rotation E (13) (``estimation.observer.e_exact``)."""
     phi, theta, psi = (0.5 * a for a in euler_rad)
     cf, sf = math.cos(phi), math.sin(phi)
     ct, st = math.cos(theta), math.sin(theta)
@@ -646,7 +632,7 @@ class RerunSink:
         euler = r.euler_rad
         if euler is not None and all(math.isfinite(a) for a in euler):
             # v_body = E^T y: the measured NED velocity in body axes with the held attitude (13)
-            v_body = body_to_ned_matrix(euler).T @ np.asarray(r.v_ned_mps, dtype=np.float64)
+            v_body = e_exact(euler).T @ np.asarray(r.v_ned_mps, dtype=np.float64)
             veh.groups["meas_body"].append(t, tuple(float(x) for x in v_body))
             if all(math.isfinite(x) for x in r.position_ned_m):
                 truth_v = veh.truth_v_body or (math.nan, math.nan, math.nan)

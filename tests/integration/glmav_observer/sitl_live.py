@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from glmav_observer.app import Service, ServiceSummary
+from glmav_observer.commands.demo import scenario_toml
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import Record
@@ -56,38 +57,12 @@ class LiveRun:
 
 
 def fault_scenario(tmp: Path, axis: str, kind: str, t_start_s: float, magnitude: float) -> Path:
-    """A climbing turn (as the shipped fault scenarios) with one velocity fault."""
+    """A climbing turn (as the shipped fault scenarios and the demo) with one velocity fault."""
     p = tmp / f"fault-{kind}-{axis}.toml"
-    p.write_text(
-        f'''name = "fault-{kind}-{axis}"
-description = "climbing turn, velocity {kind} on {axis} from {t_start_s} s"
-duration_s = 60.0
-
-[initial]
-position_ned_m = [0.0, 0.0, -10.0]
-
-[[setpoints]]
-t_s = 0.0
-kind = "hold"
-yaw_rad = 0.0
-
-[[setpoints]]
-t_s = 3.0
-kind = "turn"
-speed_mps = 3.0
-turn_rate_radps = 0.3
-climb_rate_mps = 0.5
-
-[[faults]]
-sensor = "velocity"
-axis = "{axis}"
-kind = "{kind}"
-t_start_s = {t_start_s}
-t_end_s = 1000.0
-magnitude = {magnitude}
-''',
-        encoding="utf-8",
+    text = scenario_toml(
+        60.0, axis, kind, t_start_s, 1000.0, magnitude=magnitude, name=f"fault-{kind}-{axis}"
     )
+    p.write_text(text, encoding="utf-8")
     return p
 
 

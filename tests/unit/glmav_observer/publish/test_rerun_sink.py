@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from glmav_observer.estimation.observer import e_exact
 from glmav_observer.publish.rerun_sink import (
     TIMELINE,
     RerunMode,
     RerunModeError,
     RerunSink,
-    body_to_ned_matrix,
     build_blueprint,
     interpolate_truth,
     open_rerun_sink,
@@ -101,15 +101,15 @@ def test_bad_modes_raise(text: str, match: str) -> None:
 
 def test_rotation_is_e_of_13_and_matches_quaternion() -> None:
     # yaw 90 deg: the body's forward axis points east (NED y), right axis points south
-    e = body_to_ned_matrix((0.0, 0.0, math.pi / 2))
+    e = e_exact((0.0, 0.0, math.pi / 2))
     np.testing.assert_allclose(e @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
     np.testing.assert_allclose(e @ [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], atol=1e-15)
     # pitch up 90 deg: forward points up (NED -z)
-    e = body_to_ned_matrix((0.0, math.pi / 2, 0.0))
+    e = e_exact((0.0, math.pi / 2, 0.0))
     np.testing.assert_allclose(e @ [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], atol=1e-15)
     rng = np.random.default_rng(7)
     for euler in rng.uniform([-3, -1.5, -3], [3, 1.5, 3], size=(200, 3)):
-        m = body_to_ned_matrix(euler)
+        m = e_exact(euler)
         # a rotation: orthonormal with det +1 (round-off of a few ulp)
         np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-14)
         assert np.linalg.det(m) == pytest.approx(1.0, abs=1e-14)
