@@ -23,7 +23,7 @@ from typing import Any
 
 from benchmarks.common import RESULTS_DIR, format_goals, machine, write_result
 
-#: In the order of the docs. ``accuracy`` and ``soak`` are the long ones.
+#: In the order of the docs. ``accuracy``, ``fuzz_ingest`` and ``soak`` are the long ones.
 MODULES: tuple[str, ...] = (
     "bench_observer",
     "bench_sitl",
@@ -31,6 +31,8 @@ MODULES: tuple[str, ...] = (
     "bench_zenoh",
     "bench_rerun",
     "accuracy",
+    "faults_accuracy",
+    "fuzz_ingest",
     "soak",
 )
 

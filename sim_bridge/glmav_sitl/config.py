@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -28,8 +27,10 @@ class ConfigError(ValueError):
 
 def data_path(*parts: str) -> Path:
     """Path of a default file shipped in ``glmav_sitl/data`` (e.g. ``data_path("sitl.toml")``)."""
-    root = resources.files("glmav_sitl") / "data"
-    return Path(str(root.joinpath(*parts)))
+    # Relative to this module, not importlib.resources.files("glmav_sitl"): a folder named
+    # glmav_sitl without __init__.py earlier on sys.path (tests/integration/glmav_sitl under
+    # pytest's rootdir insertion) is a namespace package that resources would resolve to.
+    return Path(__file__).resolve().parent.joinpath("data", *parts)
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
