@@ -32,7 +32,13 @@ from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.vehicle import VehicleEstimator
 from glmav_observer.ingest.framing import FrameCounters, FrameDecoder, iter_tlog, new_dialect
 from glmav_observer.ingest.links import Link
-from glmav_observer.ingest.pipeline import Ingest, NewVehicle, VehicleEvicted, VehicleReset
+from glmav_observer.ingest.pipeline import (
+    Ingest,
+    IngestEvent,
+    NewVehicle,
+    VehicleEvicted,
+    VehicleReset,
+)
 from glmav_observer.ingest.rates import encode_rate_request
 from glmav_observer.ingest.samples import Sample
 from glmav_observer.publish.file_sink import FileSink
@@ -168,7 +174,10 @@ class Service:
     def feed_message(self, msg: Any, t_arrival_s: float, link_id: str = "") -> int:
         """One decoded message; returns the number of records produced."""
         self.messages += 1
-        events = self.ingest.on_message(msg, t_arrival_s)
+        return self._handle(self.ingest.on_message(msg, t_arrival_s), link_id)
+
+    def _handle(self, events: list[IngestEvent], link_id: str) -> int:
+        """Ingest events -> estimators -> sinks; returns the number of records produced."""
         if not events:
             return 0
         out: list[Record] = []
@@ -320,6 +329,8 @@ class Service:
         if self._closed:
             return
         self._closed = True
+        # samples still held by the reorder buffer are estimated, not lost
+        self._handle(self.ingest.flush(), "")
         for sink in self.sinks:
             try:
                 sink.close()

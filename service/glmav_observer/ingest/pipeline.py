@@ -17,7 +17,9 @@ better one has been silent for ``imu_fallback_s`` of vehicle time.
 from __future__ import annotations
 
 import collections
+import heapq
 import logging
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -83,6 +85,9 @@ class IngestConfig:
     rate_window_s: float = 2.0
     rate_shortfall_ratio: float = 0.8
     rate_retry_s: float = 5.0
+    #: Vehicle seconds a sample is held so that samples jittered out of order on the link
+    #: are released in vehicle-time order (0: none, samples are processed on arrival).
+    reorder_window_s: float = 0.0
 
 
 @dataclass
@@ -98,6 +103,10 @@ class VehicleInput:
     t_host_last_s: float
     imu_source: ImuSource | None = None
     imu_source_t_s: float = 0.0
+    #: reorder buffer: a heap of (t_boot_s, arrival number, message name, sample)
+    held: list[tuple[float, int, str, Sample]] = field(default_factory=list)
+    held_count: int = 0
+    newest_t_s: float | None = None
 
 
 class Ingest:
@@ -179,18 +188,55 @@ class Ingest:
             v.counters[err.reason] += 1
             logger.debug("sample rejected", extra={"sysid": sysid, "reason": err.reason})
             return events
+        window = self.config.reorder_window_s
+        if window <= 0.0:
+            self._admit(v, name, t_s, sample, events)
+            return events
+        clk = self.config.clock
+        newest = v.newest_t_s
+        if newest is not None and not (
+            newest - clk.reset_backwards_s <= t_s <= newest + clk.jump_forward_s
+        ):
+            # far off the timeline (a reboot or a corrupt stamp): no reordering across it;
+            # release what is held, then let the clock decide about this sample
+            self._release(v, math.inf, events)
+            self._admit(v, name, t_s, sample, events)
+            return events
+        v.newest_t_s = t_s if newest is None else max(newest, t_s)
+        heapq.heappush(v.held, (t_s, v.held_count, name, sample))
+        v.held_count += 1
+        self._release(v, v.newest_t_s - window, events)
+        return events
+
+    def _release(self, v: VehicleInput, t_max_s: float, events: list[IngestEvent]) -> None:
+        """Admit the held samples up to vehicle time ``t_max_s``, oldest first."""
+        held = v.held
+        while held and held[0][0] <= t_max_s:
+            t_s, _, name, sample = heapq.heappop(held)
+            self._admit(v, name, t_s, sample, events)
+
+    def flush(self) -> list[IngestEvent]:
+        """Release every held sample (at the end of a log, or when the service stops)."""
+        events: list[IngestEvent] = []
+        for v in self.vehicles.values():
+            self._release(v, math.inf, events)
+        return events
+
+    def _admit(
+        self, v: VehicleInput, name: str, t_s: float, sample: Sample, events: list[IngestEvent]
+    ) -> None:
+        """The vehicle's clock decides; an admitted sample is appended to ``events``."""
         if name != "SIM_STATE":
             adm = v.clock.admit(name, t_s)
             if adm is Admission.RESET:
-                events.append(VehicleReset(sysid, t_s, "clock_reset"))
+                events.append(VehicleReset(v.sysid, t_s, "clock_reset"))
                 v.imu_source = None
             elif adm not in (Admission.ACCEPT, Admission.REORDERED):
-                return events
+                return
         if isinstance(sample, ImuSample) and not self._imu_wanted(v, sample):
-            return events
+            return
         v.rates.note(name, t_s)
         events.append(sample)
-        return events
 
     def _imu_wanted(self, v: VehicleInput, s: ImuSample) -> bool:
         best = v.imu_source
