@@ -24,7 +24,6 @@ from glmav_observer.ingest.convert import RawImuScale
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
 
-RERUN_MODES = ("off", "spawn", "serve")
 #: Requested stream rates when ``[rates.hz]`` is absent (design.md's SITL rates).
 DEFAULT_RATES_HZ: dict[str, float] = {
     "ATTITUDE": 100.0,
@@ -335,10 +334,14 @@ def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:
 
 
 def check_rerun_mode(mode: str) -> str | None:
-    """None if ``mode`` is a valid ``--rerun`` value, else the reason."""
-    if mode in RERUN_MODES or (mode.startswith(("save:", "connect:")) and len(mode) > 5):
-        return None
-    return "must be off, spawn, serve, save:PATH or connect:URL"
+    """None if ``mode`` is a valid ``--rerun`` value, else the reason (the sink's parser)."""
+    from glmav_observer.publish.rerun_sink import RerunModeError, parse_rerun_mode
+
+    try:
+        parse_rerun_mode(mode)
+    except RerunModeError as err:
+        return str(err)
+    return None
 
 
 def load_config(path: str | Path | None) -> ServiceConfig:

@@ -33,7 +33,7 @@ def test_shipped_file_documents_the_defaults() -> None:
         ({"estimation": {"gama_full": 3.0}}, "estimation.gama_full", "unknown key"),
         ({"rates": {"hz": {"FOO": 10.0}}}, "rates.hz.FOO", "unknown message"),
         ({"ingest": {"raw_imu": {"sysid": {"300": {}}}}}, "ingest.raw_imu.sysid.300", "1..255"),
-        ({"rerun": {"mode": "tv"}}, "rerun.mode", "must be off"),
+        ({"rerun": {"mode": "tv"}}, "rerun.mode", "expected off, spawn"),
         ({"service": {"out": "x.txt"}}, "service.out", ".csv or .jsonl"),
         ({"ingest": {"max_vehicles": True}}, "ingest.max_vehicles", "integer"),
     ],
