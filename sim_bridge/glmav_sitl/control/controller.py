@@ -25,7 +25,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from glmav_sitl.dynamics.frames import quat_conj, quat_from_euler, quat_mul
+from glmav_sitl.dynamics.frames import quat_conj, quat_from_euler, quat_mul, rotation_from_quat
 from glmav_sitl.params import VehicleParams
 from glmav_sitl.scenario import ControllerGains, Setpoint
 
@@ -77,15 +77,9 @@ class Controller:
     def update(self, t_s: float, x: Sequence[float]) -> list[float]:
         p, k = self.p, self.k
         qw, qx, qy, qz = x[6], x[7], x[8], x[9]
-        r11 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        r12 = 2.0 * (qx * qy - qw * qz)
-        r13 = 2.0 * (qx * qz + qw * qy)
-        r21 = 2.0 * (qx * qy + qw * qz)
-        r22 = 1.0 - 2.0 * (qx * qx + qz * qz)
-        r23 = 2.0 * (qy * qz - qw * qx)
-        r31 = 2.0 * (qx * qz - qw * qy)
-        r32 = 2.0 * (qy * qz + qw * qx)
-        r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
+        (r11, r12, r13), (r21, r22, r23), (r31, r32, r33) = rotation_from_quat(
+            qw, qx, qy, qz
+        ).tolist()
         yaw = math.atan2(r21, r11)
         pos = (x[0], x[1], x[2])
         vu, vv, vw = x[3], x[4], x[5]
