@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glmav_sitl.control.controller import Controller
-from glmav_sitl.dynamics.frames import euler_from_quat
+from glmav_sitl.dynamics.frames import euler_from_quat, rotate_body_to_ned
 from glmav_sitl.dynamics.model import (
     ModelOptions,
     initial_state,
@@ -142,17 +142,7 @@ class Simulator:
         _, f_body = self._f(x, self.u, self.wind_ned)
         qw, qx, qy, qz = x[6], x[7], x[8], x[9]
         vu, vv, vw = x[3], x[4], x[5]
-        v_ned = (
-            (1 - 2 * (qy * qy + qz * qz)) * vu
-            + 2 * (qx * qy - qw * qz) * vv
-            + 2 * (qx * qz + qw * qy) * vw,
-            2 * (qx * qy + qw * qz) * vu
-            + (1 - 2 * (qx * qx + qz * qz)) * vv
-            + 2 * (qy * qz - qw * qx) * vw,
-            2 * (qx * qz - qw * qy) * vu
-            + 2 * (qy * qz + qw * qx) * vv
-            + (1 - 2 * (qx * qx + qy * qy)) * vw,
-        )
+        v_ned = rotate_body_to_ned((qw, qx, qy, qz), (vu, vv, vw))
         self._truth_cache = TruthState(
             t_s=self.t_s,
             p_ned_m=(x[0], x[1], x[2]),
