@@ -78,12 +78,20 @@ class VelocityRecord:
 
 @dataclass(frozen=True, slots=True)
 class FaultEvent:
-    """An isolated velocity-sensor fault on one NED axis."""
+    """A fault found by the FDI.
 
-    axis: AxisName
-    kind: str  # "dropout" | "freeze" | "bias" | "noise"
+    Velocity-sensor faults (``dropout``, ``freeze``, ``bias``, ``noise``, and ``unaided``
+    when the autopilot says its velocity is not aided) name the NED axis isolated. An
+    accelerometer fault (``accel_bias``) isolates no axis: ``axis`` is ``"body"``,
+    ``t_onset_s`` the estimated change time and ``bias_body_mps2`` the estimated change of
+    the body-frame (FRD) accelerometer bias.
+    """
+
+    axis: AxisName | Literal["body"]
+    kind: str  # "dropout" | "freeze" | "bias" | "noise" | "unaided" | "accel_bias"
     t_detect_s: float
     t_onset_s: float | None = None
+    bias_body_mps2: Vec3 | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -91,6 +99,7 @@ class FaultEvent:
             "kind": self.kind,
             "t_detect_s": self.t_detect_s,
             "t_onset_s": self.t_onset_s,
+            "bias_body_mps2": _vec(self.bias_body_mps2),
         }
 
 

@@ -1,52 +1,59 @@
-"""Fault detection and isolation (FDI) of the velocity sensor, one NED axis at a time.
+"""Fault detection and isolation (FDI) of the velocity measurement, one NED axis at a time.
 
-Pure computation (no I/O): the vehicle estimator feeds it the earth-frame integral of
-the IMU's acceleration and every velocity measurement; it returns, per axis, whether
-the sample may be used, the residual and its test ratios, and isolation/recovery events.
+Pure computation (no I/O): the vehicle estimator feeds it the earth-frame integrals of the
+IMU and every velocity measurement; it returns, per axis, whether the sample may be used,
+the residual and its test ratio, and isolation/recovery events. Docs: docs/observer.md,
+"Fault isolation".
 
-The residual of axis j
-----------------------
+The reference (what the IMU says the velocity is)
+-------------------------------------------------
 With consistent kinematics the earth-frame velocity obeys V̇ = E Γ (equations.md, "What
-careful analysis adds"; Γ = f + g_body, (9)), which does not involve the body velocity.
-With the accelerometer reading f = f_true + b (b a body-frame bias, constant over a few
-seconds) and the integrals the vehicle keeps, A(t) = ∫ (E f + g e_d) dt and
-B(t) = ∫ E dt (3×3, the same ZOH inputs as the bank):
+careful analysis adds"; Γ = f + g_body, (9)). A real autopilot's IMU and attitude are not
+exact: the accelerometer reads f + b (b a body-frame bias), and its heading carries an error
+δψ, which rotates the earth-frame acceleration about the down axis. To first order,
 
-    z(τ) = y(τ) − A(τ) = V0 − B(τ) b + n(τ)
+    z_j(τ) = y_j(τ) − A_j(τ) = V0_j − B_j(τ) b + δψ C_j(τ) + n_j(τ)
 
-linear in θ = (V0, b). :class:`BiasFit` solves it by least squares over the *vetted*
-samples of the last ``bias_window_s`` (samples at least ``vet_delay_s`` old that passed
-every test while their axis was healthy; each gives one row, for its own axis). The
-body-frame b is observable from the earth-frame measurements as the vehicle turns or
-from three axes at once, so a turning vehicle does not bend the prediction (an
-earth-frame bias would rotate with the yaw). The predictor and residual of axis j are
+with the integrals A(t) = ∫ (E f + g e_d) dt, B(t) = ∫ E dt (3×3) and C(t) = ∫ (−a_e, a_n,
+0) dt kept by the vehicle (a = E f + g e_d). θ = (V0 (3), b (3), δψ) is fitted by Bayesian
+linear regression over the *vetted* samples of the last ``bias_window_s`` (samples at
+least ``vet_delay_s`` old that passed every test), with zero-mean priors σ_b =
+``prior_bias_mps2`` and σ_ψ = ``prior_yaw_rad`` (V0 is free). The priors keep the fit
+bounded when the flight does not excite b or δψ (hover, straight flight), and the
+posterior covariance P gives the prediction's own uncertainty: extrapolating an
+unobserved heading error into a sudden acceleration is uncertain, and the tests say so.
 
-    ŷ_j(t) = V0_j + A_j(t) − B_j(t) b̂,      r_j(t) = y_j(t) − ŷ_j(t)
+    ŷ_j(t) = x_j(t) θ̂,   σ²_pred,j = x_j P x_jᵀ,   r_j = y_j − ŷ_j
 
-which is what the IMU and the configuration c_j that does not use axis j predict: c_j's
-lost axis is this dead reckoning. Because the reference is ``vet_delay_s`` old, a fault
-isolated within that delay has not entered it, so r_j stays clean and ŷ_j is a clean
-hand-over. While an axis is isolated its prediction is frozen at the fit of the moment
-of isolation, and b̂ stops being refitted (the other axes keep refitting their V0).
+Residual scale from the data. σ_r,j, the spread of vetted residuals of axis j (a running
+mean of r², winsorised at 4σ, over ~``scale_samples`` samples, floored at
+``sigma_floor_mps``), starts at ``sigma_meas_mps`` and adapts to what the vehicle sends: an
+autopilot's filtered velocity, a vibrating IMU, a slow stream. The IMU's own noise, measured
+on the IMU (σ_f² per axis from successive differences, :mod:`despike`), adds the random walk
+it causes over the prediction horizon h = ``vet_delay_s`` + ``bias_window_s``/2:
+σ²_imu = σ_f² Δt_imu h (a velocity fault cannot raise it). Every test threshold is a
+multiple of s_j = √(σ_r,j² + σ²_pred,j + σ²_imu), never a number tuned on one simulator.
 
-Tests (each a named outcome, thresholds in :class:`FdiConfig`):
+Tests (thresholds in :class:`FdiConfig`):
 
-- dropout: ``dropout_samples`` consecutive NaN samples (a missing stream is reported by
-  the vehicle as a dropout of all axes);
-- freeze: ``freeze_repeats`` exact repeats of the previous value (with noise of σ 0.05
-  m/s, an exact float repeat has probability ~0);
-- bias: the median of the last ``bias_samples`` residuals beyond ``bias_threshold_mps``
-  (the median: one outlier cannot move it);
-- noise: the median of the last ``noise_samples`` squared successive differences of the
-  residual over its nominal value 2σ_y²·0.4549 (0.4549 = median of χ²₁) beyond
-  ``noise_ratio_threshold`` (successive differences: a bias step adds one large
-  difference, a noise burst makes all of them large).
+- dropout: ``dropout_samples`` consecutive NaN samples;
+- freeze: ``freeze_repeats`` exact repeats of the previous value;
+- bias: |median of the last ``bias_samples`` residuals| > max(``bias_threshold_mps``,
+  ``bias_sigma`` · s_j) (the median: one outlier cannot move it);
+- noise: median of the last ``noise_samples`` squared successive differences over its
+  nominal 2σ_r²·0.4549 (median of χ²₁) beyond ``noise_ratio_threshold``.
 
-Hysteresis: bias and noise must fail ``k_isolate`` samples in a row to isolate (one
-outlier does not switch); each sample whose residual is beyond ``gate_sigma`` σ is kept
-out of the full observer (gated) while the tests decide. Recovery: the axis must pass
-every test (residual against the dead-reckoned prediction within the bias threshold
-plus 3σ of the dead-reckoning uncertainty) for ``recovery_s`` without a break.
+Accelerometer faults are not velocity faults. Before a bias is isolated on axis j, two
+explanations of the recent residuals of *all three* axes since a change time t_c are
+compared (:func:`classify_change`): a velocity step on axis j alone (r_j = β) and an
+accelerometer-bias step in body axes, which shows in every earth axis and rotates with the
+attitude (r_k = −(B_k(τ) − B_k(t_c)) Δb, a ramp). The model with the lower BIC wins. An
+accelerometer change re-anchors the reference at t_c (``accel_bias`` event with Δb) and
+isolates no velocity axis.
+
+Hysteresis: bias and noise must fail ``k_isolate`` samples in a row; a sample beyond
+``gate_sigma`` · s_j is kept out of ``full`` meanwhile. Recovery: the axis must pass every
+test against the frozen dead reckoning for ``recovery_s``.
 """
 
 from __future__ import annotations
@@ -56,16 +63,24 @@ import statistics
 from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
 from glmav_observer.records import NED_AXES, AxisName, FaultEvent
 
-#: Vetted samples of a recovered axis before its prediction comes from the live fit again
-#: (> the 6 rows between two fits, and enough to pin its V0: 20 samples = 0.67 s at 30 Hz).
+#: Vetted samples of a recovered axis before its prediction comes from the live fit again.
 REARM_ROWS = 20
 #: Median of the χ² distribution with one degree of freedom.
 CHI2_1_MEDIAN = 0.45494
+#: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1).
+N_THETA = 7
+#: Precision of the (free) V0 prior, 1/(m/s)²: 1/(100 m/s)².
+_V0_PRECISION = 1e-4
+
+FloatArray = np.ndarray[Any, np.dtype[np.float64]]
+#: One row's regressors: B(τ) flattened (9) and C(τ) (3).
+Integrals = tuple[tuple[float, ...], tuple[float, float, float]]
 
 
 class AxisState(Enum):
@@ -78,11 +93,17 @@ class AxisState(Enum):
     RECOVERING = "recovering"  # isolated, healthy again for less than recovery_s
 
 
+#: Fault kinds decided by comparing the measurement with the IMU (revisable when the IMU
+#: itself is found at fault); dropout, freeze and unaided are seen in the measurement alone.
+RESIDUAL_KINDS = frozenset({"bias", "noise"})
+
+
 class FaultKind(Enum):
     DROPOUT = "dropout"
     FREEZE = "freeze"
     BIAS = "bias"
     NOISE = "noise"
+    UNAIDED = "unaided"  # the autopilot says this velocity is not aided (GPS lost)
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,15 +111,18 @@ class FdiConfig:
     """FDI settings (``[fdi]`` of ``configs/service.toml``; all documented there)."""
 
     sigma_meas_mps: float = 0.05
+    sigma_floor_mps: float = 0.02
+    scale_samples: int = 250
     vet_delay_s: float = 0.6
     bias_window_s: float = 4.0
     warmup_s: float = 1.5
-    gate_sigma: float = 3.0
+    gate_sigma: float = 5.0
     dropout_samples: int = 2
-    missing_timeout_s: float = 0.3
+    missing_timeout_s: float = 0.5
     freeze_repeats: int = 3
     bias_samples: int = 6
-    bias_threshold_mps: float = 0.18
+    bias_threshold_mps: float = 0.15
+    bias_sigma: float = 5.0
     noise_samples: int = 12
     noise_ratio_threshold: float = 12.0
     k_isolate: int = 3
@@ -106,7 +130,14 @@ class FdiConfig:
     sigma_handover_mps: float = 0.03
     sigma_bias_mps2: float = 0.03
     accel_noise_density: float = 4e-3
-    min_imu_rate_hz: float = 50.0
+    min_imu_rate_hz: float = 5.0
+    prior_bias_mps2: float = 0.3
+    prior_yaw_rad: float = 0.1
+    #: rows of one axis per independent sample: an autopilot's velocity is filtered, its
+    #: errors correlated over a few samples (P is inflated by this factor)
+    correlation_samples: float = 5.0
+    max_bias_mps2: float = 2.0
+    change_window_s: float = 1.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,30 +150,71 @@ class AxisVerdict:
     state: AxisState
 
 
+@dataclass(frozen=True, slots=True)
+class Reference:
+    """A fitted reference: θ̂, its covariance and the integrals it is anchored at."""
+
+    theta: tuple[float, ...]  # V0 n, e, d; b x, y, z; δψ
+    cov: FloatArray  # (7, 7)
+    b_anchor: tuple[float, ...]  # B at the first row (9)
+    c_anchor: tuple[float, float, float]  # C at the first row
+
+    def regressors(self, axis: int, ints: Integrals) -> list[float]:
+        b_int, c_int = ints
+        k = 3 * axis
+        x = [0.0] * N_THETA
+        x[axis] = 1.0
+        x[3] = -(b_int[k] - self.b_anchor[k])
+        x[4] = -(b_int[k + 1] - self.b_anchor[k + 1])
+        x[5] = -(b_int[k + 2] - self.b_anchor[k + 2])
+        x[6] = c_int[axis] - self.c_anchor[axis]
+        return x
+
+    def predict(self, axis: int, a_int_j: float, ints: Integrals) -> tuple[float, float]:
+        """(ŷ_j, σ_pred,j) at integrals ``ints``."""
+        x = self.regressors(axis, ints)
+        mean = a_int_j + sum(xi * ti for xi, ti in zip(x, self.theta, strict=True))
+        xv = np.asarray(x)
+        var = float(xv @ self.cov @ xv)
+        return mean, math.sqrt(max(var, 0.0))
+
+    @property
+    def bias_body_mps2(self) -> tuple[float, float, float]:
+        return (self.theta[3], self.theta[4], self.theta[5])
+
+    def shifted(self, axis: int, dv_mps: float) -> Reference:
+        th = list(self.theta)
+        th[axis] += dv_mps
+        return Reference(tuple(th), self.cov, self.b_anchor, self.c_anchor)
+
+
 @dataclass
-class BiasFit:
-    """Least squares of z = V0 − B b over vetted rows (module docstring), shared by the axes."""
+class ReferenceFit:
+    """The Bayesian least squares of the module docstring, shared by the three axes."""
 
     cfg: FdiConfig
-    #: rows (t, axis, z_j, B(t) flat 9): one per vetted sample
-    rows: deque[tuple[float, int, float, tuple[float, ...]]] = field(default_factory=deque)
-    v0_mps: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    bias_body_mps2: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    b_anchor: tuple[float, ...] = (0.0,) * 9
+    #: rows (t, axis, z_j, B(t) flat 9, C(t) 3, σ_r of the axis): one per vetted sample
+    rows: deque[tuple[float, int, float, tuple[float, ...], tuple[float, float, float], float]] = (
+        field(default_factory=deque)
+    )
+    ref: Reference | None = None
     fitted: bool = False
     frozen_bias: bool = False
-    #: the IMU is fast enough to predict the velocity (``min_imu_rate_hz``)
     imu_ok: bool = True
     _since_fit: int = 0
-    #: vetted rows per axis in the window (an axis needs its own rows to be predicted)
     rows_per_axis: list[int] = field(default_factory=lambda: [0, 0, 0])
-    #: axes whose V0 the last fit determined
     fitted_axes: frozenset[int] = frozenset()
 
-    def add(self, t_s: float, axis: int, z_mps: float, b_int: tuple[float, ...]) -> None:
-        self.rows.append((t_s, axis, z_mps, b_int))
+    def add(self, t_s: float, axis: int, z_mps: float, ints: Integrals, sigma_mps: float) -> None:
+        self.rows.append((t_s, axis, z_mps, ints[0], ints[1], sigma_mps))
         self.rows_per_axis[axis] += 1
         self._since_fit += 1
+
+    def drop_before(self, t_s: float) -> None:
+        while self.rows and self.rows[0][0] < t_s:
+            self.rows_per_axis[self.rows.popleft()[1]] -= 1
+        self.fitted = False
+        self.fitted_axes = frozenset()
 
     def prune_and_fit(self, t_s: float) -> None:
         t_min = t_s - self.cfg.vet_delay_s - self.cfg.bias_window_s
@@ -156,57 +228,120 @@ class BiasFit:
     def span_s(self) -> float:
         return self.rows[-1][0] - self.rows[0][0] if self.rows else 0.0
 
+    @property
+    def bias_body_mps2(self) -> tuple[float, float, float]:
+        return (0.0, 0.0, 0.0) if self.ref is None else self.ref.bias_body_mps2
+
     def _fit(self) -> None:
         rows = self.rows
         if len(rows) < 12 or self.span_s() < 1.0:
             return
-        b0 = rows[0][3]
+        cfg = self.cfg
         n = len(rows)
+        b0 = rows[0][3]
+        c0 = rows[0][4]
         axes = np.fromiter((r[1] for r in rows), dtype=np.intp, count=n)
         z = np.fromiter((r[2] for r in rows), dtype=np.float64, count=n)
-        Bfull = np.array([r[3] for r in rows]) - np.asarray(b0)  # (n, 9) B(τ) − B(τ0)
-        Bj = Bfull.reshape(n, 3, 3)[np.arange(n), axes]  # row j of B for each sample
-        present = [k for k in range(3) if np.any(axes == k)]
-        if self.frozen_bias or len(present) < 3:
-            # b held: V0_j = mean of z_j + B_j b over the window, per axis present
-            b = np.asarray(self.bias_body_mps2)
-            zc = z + Bj @ b
-            for k in present:
-                self.v0_mps[k] = float(zc[axes == k].mean())
-            self.b_anchor = tuple(b0)
-            self.fitted_axes = frozenset(present)
-            return
-        X = np.zeros((n, 6))
+        w = np.fromiter((1.0 / r[5] ** 2 for r in rows), dtype=np.float64, count=n)
+        w /= cfg.correlation_samples
+        Bj = (np.array([r[3] for r in rows]) - np.asarray(b0)).reshape(n, 3, 3)[np.arange(n), axes]
+        Cj = (np.array([r[4] for r in rows]) - np.asarray(c0))[np.arange(n), axes]
+        X = np.zeros((n, N_THETA))
         X[np.arange(n), axes] = 1.0
-        X[:, 3:] = -Bj
-        theta, *_ = np.linalg.lstsq(X, z, rcond=None)
-        self.v0_mps = theta[:3].tolist()
-        self.bias_body_mps2 = theta[3:].tolist()
-        self.b_anchor = tuple(b0)
+        X[:, 3:6] = -Bj
+        X[:, 6] = Cj
+        prior = np.array(
+            [_V0_PRECISION] * 3 + [1.0 / cfg.prior_bias_mps2**2] * 3 + [1.0 / cfg.prior_yaw_rad**2]
+        )
+        present = [k for k in range(3) if np.any(axes == k)]
+        old = self.ref
+        if self.frozen_bias and old is not None:
+            # an axis is isolated: b and δψ are held at the values of isolation (the rows of
+            # the remaining axes refit their V0 only)
+            prior[3:] = 1e12
+            mean = np.array(old.theta)
+        else:
+            mean = np.zeros(N_THETA)
+        XtW = X.T * w
+        info = XtW @ X + np.diag(prior)
+        rhs = XtW @ z + prior * mean
+        try:
+            cov = np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            return
+        theta = cov @ rhs
+        if self.frozen_bias and old is not None:
+            # B anchor moved: with b, δψ held, only V0 changes; keep θ's b, δψ exactly
+            theta[3:] = np.asarray(old.theta[3:])
+        # bounded: a fit beyond any accelerometer's bias is not applied
+        b = theta[3:6]
+        nb = float(np.linalg.norm(b))
+        if nb > cfg.max_bias_mps2:
+            theta[3:6] = b * (cfg.max_bias_mps2 / nb)
+        self.ref = Reference(
+            tuple(theta.tolist()),
+            np.asarray(cov, dtype=np.float64),
+            tuple(b0),
+            (c0[0], c0[1], c0[2]),
+        )
         self.fitted = True
         self.fitted_axes = frozenset(present)
 
-    def params(self, axis: int) -> tuple[float, tuple[float, float, float], tuple[float, ...]]:
-        """(V0_j, b̂, B anchor) for predictions of axis ``axis``."""
-        b = self.bias_body_mps2
-        return self.v0_mps[axis], (b[0], b[1], b[2]), self.b_anchor
 
-
-def _predict(
-    params: tuple[float, tuple[float, float, float], tuple[float, ...]],
+def classify_change(
     axis: int,
-    a_int_j: float,
-    b_int: tuple[float, ...],
-) -> float:
-    v0, b, b0 = params
-    k = 3 * axis
-    return (
-        v0
-        + a_int_j
-        - (b_int[k] - b0[k]) * b[0]
-        - (b_int[k + 1] - b0[k + 1]) * b[1]
-        - (b_int[k + 2] - b0[k + 2]) * b[2]
-    )
+    recent: list[tuple[float, int, float, tuple[float, ...]]],
+    sigma_mps: tuple[float, float, float],
+) -> tuple[str, tuple[float, float, float], float]:
+    """Velocity step on ``axis`` or accelerometer-bias step? (module docstring).
+
+    ``recent``: (t, axis, residual, B(t) flat 9) of every axis over the last
+    ``change_window_s``. Returns (``"velocity"`` | ``"accel"``, Δb (body, m/s²), t_c).
+    Each model is fitted for every candidate change time t_c (a sample time of ``axis``);
+    residuals are weighted by their axis's σ_r; the lower BIC wins (the accelerometer
+    model has 3 parameters, the step 1).
+    """
+    if len(recent) < 6:
+        return "velocity", (0.0, 0.0, 0.0), math.nan
+    t = np.array([r[0] for r in recent])
+    ax = np.array([r[1] for r in recent], dtype=np.intp)
+    res = np.array([r[2] for r in recent])
+    Bf = np.array([r[3] for r in recent]).reshape(-1, 3, 3)
+    s = np.asarray(sigma_mps)[ax]
+    cand = t[ax == axis]
+    best_v = (math.inf, 0.0)
+    best_a = (math.inf, 0.0, np.zeros(3))
+    n_all = len(t)
+    for tc in cand[:-2]:
+        after = t >= tc
+        if after.sum() < 4:
+            continue
+        # step on `axis`
+        on_j = after & (ax == axis)
+        beta = float(np.median(res[on_j])) if on_j.any() else 0.0
+        pred_v = np.where(on_j, beta, 0.0)
+        sse_v = float(np.sum(((res - pred_v) / s) ** 2))
+        # accelerometer step: r_k = −(B_k(τ) − B_k(t_c)) Δb for τ ≥ t_c
+        i_c = int(np.searchsorted(t, tc))
+        Bc = Bf[i_c] if i_c < len(Bf) else Bf[-1]
+        D = -(Bf - Bc)[np.arange(n_all), ax] * after[:, None]
+        Dw = D / s[:, None]
+        info = Dw.T @ Dw + np.eye(3) * 1e-6
+        db = np.linalg.solve(info, Dw.T @ (res / s))
+        sse_a = float(np.sum(((res - D @ db) / s) ** 2))
+        if sse_v < best_v[0]:
+            best_v = (sse_v, float(tc))
+        if sse_a < best_a[0]:
+            best_a = (sse_a, float(tc), db)
+    if not math.isfinite(best_v[0]) or not math.isfinite(best_a[0]):
+        return "velocity", (0.0, 0.0, 0.0), math.nan
+    ln_n = math.log(n_all)
+    bic_v = n_all * math.log(max(best_v[0], 1e-12) / n_all) + 2 * ln_n
+    bic_a = n_all * math.log(max(best_a[0], 1e-12) / n_all) + 4 * ln_n
+    db3 = best_a[2]
+    if bic_a < bic_v:
+        return "accel", (float(db3[0]), float(db3[1]), float(db3[2])), best_a[1]
+    return "velocity", (0.0, 0.0, 0.0), best_v[1]
 
 
 @dataclass
@@ -216,10 +351,12 @@ class AxisMonitor:
     axis: AxisName
     index: int
     cfg: FdiConfig
-    fit: BiasFit
+    fit: ReferenceFit
     state: AxisState = AxisState.WARMUP
     fault: FaultEvent | None = None
-    _pending: deque[tuple[float, float, bool, tuple[float, ...]]] = field(default_factory=deque)
+    sigma_r_mps: float = 0.0
+    _var_r: float = 0.0
+    _pending: deque[tuple[float, float, bool, Integrals, float]] = field(default_factory=deque)
     _resid: deque[float] = field(default_factory=deque)
     _last_y: float = math.nan
     _repeats: int = 0
@@ -228,9 +365,15 @@ class AxisMonitor:
     _healthy_since_s: float | None = None
     _t_isolated_s: float = 0.0
     _t_last_vetted_s: float | None = None
-    _frozen: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
-    _fault_level_mps: float = 0.0  # |median residual| when a bias fault was isolated
+    _frozen: Reference | None = None
+    _fault_level_mps: float = 0.0
     _rearm_rows: int = 0
+    _scale: float = 0.0  # s_j of the last test
+    var_imu_mps2: float = 0.0  # σ²_imu of the module docstring, set by the detector
+
+    def __post_init__(self) -> None:
+        self._var_r = self.cfg.sigma_meas_mps**2
+        self.sigma_r_mps = self.cfg.sigma_meas_mps
 
     # ------------------------------------------------------------------ reference
     def armed(self) -> bool:
@@ -239,21 +382,29 @@ class AxisMonitor:
             return False
         return self._frozen is not None or (
             self.fit.fitted
+            and self.fit.ref is not None
             and self.fit.span_s() >= self.cfg.warmup_s
             and self.index in self.fit.fitted_axes
             and self.fit.rows_per_axis[self.index] >= 10
         )
 
-    def predict_mps(self, a_int_j: float, b_int: tuple[float, ...]) -> float:
-        """ŷ_j(t): the dead-reckoned velocity of this axis from the vetted fit (NaN unarmed)."""
+    def reference(self) -> Reference | None:
         if self._frozen is not None:
-            return _predict(self._frozen, self.index, a_int_j, b_int)
-        if not self.armed():
-            return math.nan
-        return _predict(self.fit.params(self.index), self.index, a_int_j, b_int)
+            return self._frozen
+        return self.fit.ref if self.armed() else None
+
+    def predict(self, a_int_j: float, ints: Integrals) -> tuple[float, float]:
+        """(ŷ_j, σ_pred,j): the IMU's dead reckoning of this axis (NaN when unarmed)."""
+        ref = self.reference()
+        if ref is None:
+            return math.nan, math.nan
+        return ref.predict(self.index, a_int_j, ints)
+
+    def predict_mps(self, a_int_j: float, ints: Integrals) -> float:
+        return self.predict(a_int_j, ints)[0]
 
     def sigma_dead_reckoning_mps(self, t_s: float) -> float:
-        """1σ of the prediction, growing with the age of the newest vetted sample."""
+        """1σ of the prediction's drift, growing with the age of the newest vetted sample."""
         age = 0.0 if self._t_last_vetted_s is None else max(0.0, t_s - self._t_last_vetted_s)
         c = self.cfg
         return math.sqrt(
@@ -263,33 +414,56 @@ class AxisMonitor:
         )
 
     def vet(self, t_s: float) -> None:
-        """Move pending samples older than the vetting delay into the shared fit.
-
-        After a recovery the frozen prediction is kept until ``REARM_ROWS`` new samples of
-        this axis are in the fit (the fit has then been refreshed with them).
-        """
+        """Move pending samples older than the vetting delay into the shared fit."""
         if self.fault is not None:
             return
         limit = t_s - self.cfg.vet_delay_s
         pend = self._pending
         while pend and pend[0][0] <= limit:
-            tp, zp, clean, bp = pend.popleft()
+            tp, zp, clean, ints, rp = pend.popleft()
             if clean:
-                self.fit.add(tp, self.index, zp, bp)
+                self.fit.add(tp, self.index, zp, ints, self.sigma_r_mps)
                 self._t_last_vetted_s = tp
+                if math.isfinite(rp):
+                    self._learn_scale(rp)
                 if self._frozen is not None:
                     self._rearm_rows += 1
                     if self._rearm_rows >= REARM_ROWS:
                         self._frozen = None
 
+    def _learn_scale(self, r: float) -> None:
+        """σ_r: running mean of r² (winsorised at 4σ) over ~``scale_samples`` samples."""
+        cap = 16.0 * self._var_r
+        k = 1.0 / self.cfg.scale_samples
+        self._var_r += k * (min(r * r, cap) - self._var_r)
+        self.sigma_r_mps = max(self.cfg.sigma_floor_mps, math.sqrt(self._var_r))
+
+    def rebase(self) -> None:
+        """The reference was re-anchored (an accelerometer change): start the tests afresh.
+
+        An isolation by the residual tests (bias, noise) is withdrawn: it compared the axis
+        with the IMU that has just been found at fault."""
+        self._resid.clear()
+        self._fail_run = 0
+        self._pending.clear()
+        if self.fault is not None and self.fault.kind in RESIDUAL_KINDS:
+            self.fault = None
+            self._frozen = None
+            self._healthy_since_s = None
+        if self.fault is None:
+            self.state = AxisState.WARMUP
+
     # ------------------------------------------------------------------ tests
+    def bias_threshold_mps(self) -> float:
+        return max(self.cfg.bias_threshold_mps, self.cfg.bias_sigma * self._scale)
+
     def _ratios(self) -> tuple[float, float]:
         """(bias ratio, noise ratio) of the recent residuals; NaN when too few."""
         cfg = self.cfg
         r = list(self._resid)
         rb = r[-cfg.bias_samples :]
         bias = (
-            abs(statistics.median(rb)) / cfg.bias_threshold_mps
+            abs(statistics.median(rb)) / self.bias_threshold_mps()
             if len(rb) == cfg.bias_samples
             else math.nan
         )
@@ -297,42 +471,39 @@ class AxisMonitor:
         noise = math.nan
         if len(rn) == cfg.noise_samples + 1:
             d2 = [(rn[i + 1] - rn[i]) ** 2 for i in range(cfg.noise_samples)]
-            nominal = 2.0 * cfg.sigma_meas_mps**2 * CHI2_1_MEDIAN
+            nominal = 2.0 * self.sigma_r_mps**2 * CHI2_1_MEDIAN
             noise = statistics.median(d2) / nominal / cfg.noise_ratio_threshold
         return bias, noise
 
     def _spread_ratio(self) -> float:
-        """Robust spread (1.4826 MAD) of the bias window over 3σ_y: a bias step keeps it
+        """Robust spread (1.4826 MAD) of the bias window over 3σ_r: a bias step keeps it
         small (the window holds two clusters), a noise burst makes it large."""
         rb = list(self._resid)[-self.cfg.bias_samples :]
         if len(rb) < 3:
             return 0.0
         med = statistics.median(rb)
         mad = statistics.median(abs(x - med) for x in rb)
-        return 1.4826 * mad / (3.0 * self.cfg.sigma_meas_mps)
+        return 1.4826 * mad / (3.0 * self.sigma_r_mps)
 
-    def update(
-        self, t_s: float, y_mps: float, a_int_mps: float, b_int: tuple[float, ...]
-    ) -> AxisVerdict:
-        """One measurement at vehicle time ``t_s``; ``a_int_mps`` = A_j(t), ``b_int`` = B(t)."""
+    def update(self, t_s: float, y_mps: float, a_int_mps: float, ints: Integrals) -> AxisVerdict:
+        """One measurement at vehicle time ``t_s``; ``a_int_mps`` = A_j(t), ``ints`` = (B, C)."""
         cfg = self.cfg
-        # dropout
         if not math.isfinite(y_mps):
             self._nan_run += 1
             self._healthy_since_s = None
             if self._nan_run >= cfg.dropout_samples and self.state is not AxisState.FAULTY:
-                self._isolate(t_s, FaultKind.DROPOUT, onset_s=None)
+                self.isolate(t_s, FaultKind.DROPOUT)
             elif self.state is AxisState.RECOVERING:
                 self.state = AxisState.FAULTY
             return AxisVerdict(False, math.nan, math.inf, self.state)
         self._nan_run = 0
-        # freeze: exact repeats of the previous value
         repeated = y_mps == self._last_y
         self._repeats = self._repeats + 1 if repeated else 0
         self._last_y = y_mps
-        pred = self.predict_mps(a_int_mps, b_int)
+        pred, sigma_pred = self.predict(a_int_mps, ints)
         r = y_mps - pred
         if math.isfinite(r):
+            self._scale = math.sqrt(self.sigma_r_mps**2 + sigma_pred**2 + self.var_imu_mps2)
             self._resid.append(r)
             while len(self._resid) > max(cfg.bias_samples, cfg.noise_samples + 1):
                 self._resid.popleft()
@@ -343,55 +514,54 @@ class AxisMonitor:
         )
         if self.state in (AxisState.FAULTY, AxisState.RECOVERING):
             return self._recovery(
-                t_s,
-                r=r,
-                repeated=repeated,
-                bias_ratio=bias_ratio,
-                noise_ratio=noise_ratio,
+                t_s, r=r, repeated=repeated, bias_ratio=bias_ratio, noise_ratio=noise_ratio,
                 ratio=ratio,
-            )
+            )  # fmt: skip
         if self._repeats >= cfg.freeze_repeats:
-            self._isolate(t_s, FaultKind.FREEZE, onset_s=None)
+            self.isolate(t_s, FaultKind.FREEZE)
             return AxisVerdict(False, r, ratio, self.state)
         if math.isfinite(r):
             if self.state is AxisState.WARMUP:
                 self.state = AxisState.OK
-            sigma_r = math.hypot(cfg.sigma_meas_mps, self.sigma_dead_reckoning_mps(t_s))
-            gated = abs(r) > cfg.gate_sigma * sigma_r
+            gated = abs(r) > cfg.gate_sigma * self._scale
             failing = bias_ratio > 1.0 or noise_ratio > 1.0
             if failing:
-                kind = (
-                    FaultKind.NOISE
-                    if noise_ratio > 1.0 or self._spread_ratio() > 1.0
-                    else (FaultKind.BIAS)
-                )
                 self._fail_run += 1
                 self.state = AxisState.SUSPECT
-                if self._fail_run >= cfg.k_isolate:
-                    self._isolate(t_s, kind, onset_s=None)
-                    return AxisVerdict(False, r, ratio, self.state)
             else:
                 self._fail_run = 0
                 self.state = AxisState.OK
-            self._pending.append((t_s, y_mps - a_int_mps, not gated and not failing, b_int))
-            return AxisVerdict(not gated and not repeated, r, ratio, self.state)
-        # warm-up: no reference yet
-        self._pending.append((t_s, y_mps - a_int_mps, not repeated, b_int))
+            self._pending.append((t_s, y_mps - a_int_mps, not gated and not failing, ints, r))
+            return AxisVerdict(not gated and not repeated and not failing, r, ratio, self.state)
+        self._pending.append((t_s, y_mps - a_int_mps, not repeated, ints, math.nan))
         return AxisVerdict(not repeated, math.nan, ratio, self.state)
 
-    def _isolate(self, t_s: float, kind: FaultKind, onset_s: float | None) -> None:
+    def wants_isolation(self) -> FaultKind | None:
+        """A bias or noise test failed ``k_isolate`` samples in a row: the kind, else None."""
+        if self.state is not AxisState.SUSPECT or self._fail_run < self.cfg.k_isolate:
+            return None
+        _, noise_ratio = self._ratios()
+        if noise_ratio > 1.0 or self._spread_ratio() > 1.0:
+            return FaultKind.NOISE
+        return FaultKind.BIAS
+
+    def isolate(self, t_s: float, kind: FaultKind) -> None:
         self.state = AxisState.FAULTY
-        self.fault = FaultEvent(self.axis, kind.value, t_s, onset_s)
-        # freeze the prediction: dead reckoning from the vetted fit of this moment
-        self._frozen = self.fit.params(self.index) if self.armed() else None
+        self.fault = FaultEvent(self.axis, kind.value, t_s, None)
+        self._frozen = self.fit.ref if self.armed() and self.fit.ref is not None else None
+        if self._frozen is None and self.fit.ref is not None and self._frozen_ok():
+            self._frozen = self.fit.ref
         self.fit.frozen_bias = True
         rb = list(self._resid)[-self.cfg.bias_samples :]
         self._fault_level_mps = abs(statistics.median(rb)) if rb else 0.0
-        self._pending.clear()  # samples since the onset never enter the reference
+        self._pending.clear()
         self._resid.clear()
         self._fail_run = 0
         self._healthy_since_s = None
         self._t_isolated_s = t_s
+
+    def _frozen_ok(self) -> bool:
+        return self.index in self.fit.fitted_axes
 
     def _recovery(
         self,
@@ -405,17 +575,23 @@ class AxisMonitor:
     ) -> AxisVerdict:
         """Isolated: healthy again for ``recovery_s`` (against the dead reckoning) -> OK."""
         cfg = self.cfg
-        slack = cfg.bias_threshold_mps + 3.0 * self.sigma_dead_reckoning_mps(t_s)
+        if self.fault is not None and self.fault.kind == FaultKind.UNAIDED.value:
+            return AxisVerdict(False, r, ratio, self.state)  # the autopilot decides (clear_unaided)
+        slack = self.bias_threshold_mps() + 3.0 * self.sigma_dead_reckoning_mps(t_s)
         if self.fault is not None and self.fault.kind == FaultKind.BIAS.value:
-            # a persistent bias would pass a slack that grows with the dead reckoning: the
-            # median residual must come back below a fixed level (half the fault's size)
-            slack = max(cfg.bias_threshold_mps, 0.5 * self._fault_level_mps)
+            slack = max(self.bias_threshold_mps(), 0.5 * self._fault_level_mps)
+        if (
+            self.fault is not None
+            and self.fault.kind == FaultKind.DROPOUT.value
+            and (self._frozen is None)
+        ):
+            slack = math.inf  # nothing to compare with: values are back, that is recovery
         healthy = (
             not repeated
-            and math.isfinite(r)
-            and abs(r) <= slack + 2.0 * cfg.sigma_meas_mps
-            and noise_ratio <= 1.0  # NaN (too few samples yet) is not healthy
-            and not (bias_ratio * cfg.bias_threshold_mps > slack)
+            and (math.isfinite(r) or math.isinf(slack))
+            and (not math.isfinite(r) or abs(r) <= slack + 2.0 * self.sigma_r_mps)
+            and (noise_ratio <= 1.0 or math.isinf(slack))
+            and not (bias_ratio * self.bias_threshold_mps() > slack)
         )
         if not healthy:
             self._healthy_since_s = None
@@ -425,31 +601,50 @@ class AxisMonitor:
             self._healthy_since_s = t_s
         self.state = AxisState.RECOVERING
         if t_s - self._healthy_since_s >= cfg.recovery_s:
-            self.state = AxisState.OK
-            self.fault = None
-            self._rearm_rows = 0  # the frozen prediction is kept until the fit is refreshed
-            rb = list(self._resid)[-cfg.bias_samples :]
-            if self._frozen is not None and rb:
-                # Re-anchor the frozen prediction on the measurement: the axis has passed
-                # every test for recovery_s, so what still separates it from the dead
-                # reckoning is the dead reckoning's drift since isolation (grown with the
-                # residual accelerometer bias), not a sensor fault. Kept as it was, that
-                # drift would read as a bias step and isolate the axis again.
-                v0, b, anchor = self._frozen
-                self._frozen = (v0 + statistics.median(rb), b, anchor)
-            self._resid.clear()
+            self._readmit()
             return AxisVerdict(True, r, ratio, self.state)
         return AxisVerdict(False, r, ratio, self.state)
 
-    def predict_for_handover(self, a_int_mps: float, b_int: tuple[float, ...]) -> float:
-        return self.predict_mps(a_int_mps, b_int)
+    def _readmit(self) -> None:
+        self.state = AxisState.OK
+        self.fault = None
+        self._rearm_rows = 0
+        rb = list(self._resid)[-self.cfg.bias_samples :]
+        if self._frozen is not None and rb:
+            # Re-anchor the frozen prediction on the measurement: what still separates the
+            # healthy axis from the dead reckoning is the dead reckoning's drift since
+            # isolation, not a sensor fault; kept, it would read as a bias step.
+            self._frozen = self._frozen.shifted(self.index, statistics.median(rb))
+        self._resid.clear()
 
     def force_dropout(self, t_s: float) -> bool:
         """The measurement stream is missing: isolate as a dropout. True if newly isolated."""
         if self.state is AxisState.FAULTY:
             return False
-        self._isolate(t_s, FaultKind.DROPOUT, onset_s=None)
+        self.isolate(t_s, FaultKind.DROPOUT)
         return True
+
+    def set_unaided(self, t_s: float, unaided: bool) -> None:
+        """The autopilot says this axis's velocity is (not) aided (GPS lost, EKF flags)."""
+        is_unaided = self.fault is not None and self.fault.kind == FaultKind.UNAIDED.value
+        if unaided and not is_unaided:
+            self.isolate(t_s, FaultKind.UNAIDED)
+        elif not unaided and is_unaided:
+            # aided again: the autopilot's estimate snaps back; restart the reference on it
+            self.state = AxisState.WARMUP
+            self.fault = None
+            self._frozen = None
+            self._resid.clear()
+
+
+@dataclass(frozen=True, slots=True)
+class AccelChange:
+    """An accelerometer-bias change found by :func:`classify_change` (isolates no axis)."""
+
+    t_detect_s: float
+    t_change_s: float
+    delta_bias_body_mps2: tuple[float, float, float]
+    triggered_by: AxisName
 
 
 @dataclass
@@ -457,50 +652,126 @@ class FaultDetector:
     """FDI of the three NED axes of one vehicle."""
 
     cfg: FdiConfig = field(default_factory=FdiConfig)
-    fit: BiasFit = field(init=False)
+    fit: ReferenceFit = field(init=False)
     axes: tuple[AxisMonitor, AxisMonitor, AxisMonitor] = field(init=False)
+    accel_changes: list[AccelChange] = field(default_factory=list)
+    #: (t, axis, residual, B flat 9) of every axis over the last change_window_s
+    _recent: deque[tuple[float, int, float, tuple[float, ...]]] = field(default_factory=deque)
 
     def __post_init__(self) -> None:
-        self.fit = BiasFit(self.cfg)
+        self.fit = ReferenceFit(self.cfg)
         self.axes = (
             AxisMonitor("n", 0, self.cfg, self.fit),
             AxisMonitor("e", 1, self.cfg, self.fit),
             AxisMonitor("d", 2, self.cfg, self.fit),
         )
 
-    def update(
+    def update(  # noqa: PLR0917 -- one measurement's inputs, in the vehicle's order
         self,
         t_s: float,
         y_ned_mps: tuple[float, float, float],
         a_int_mps: list[float],
-        b_int: tuple[float, ...],
+        ints: Integrals,
         imu_rate_hz: float = math.inf,
+        imu_noise_var_mps2: float = 0.0,
     ) -> tuple[AxisVerdict, AxisVerdict, AxisVerdict]:
         """One velocity measurement; the verdict per NED axis.
 
-        Below ``min_imu_rate_hz`` the IMU cannot predict the velocity (a ZOH of the
-        specific force over > 20 ms misses the vehicle's accelerations): the residual
-        tests are off and only dropout and freeze are tested.
+        ``imu_noise_var_mps2``: σ_f², the IMU's specific-force noise variance per axis.
+        Below ``min_imu_rate_hz`` the IMU cannot predict the velocity: the residual tests
+        are off and only dropout and freeze are tested.
         """
-        self.fit.imu_ok = imu_rate_hz >= self.cfg.min_imu_rate_hz
+        cfg = self.cfg
+        self.fit.imu_ok = imu_rate_hz >= cfg.min_imu_rate_hz
+        if math.isfinite(imu_rate_hz) and imu_rate_hz > 0:
+            horizon_s = cfg.vet_delay_s + 0.5 * cfg.bias_window_s
+            var_imu = imu_noise_var_mps2 * horizon_s / imu_rate_hz
+            for ax in self.axes:
+                ax.var_imu_mps2 = var_imu
         for ax in self.axes:
             ax.vet(t_s)
         self.fit.frozen_bias = any(ax.fault is not None for ax in self.axes)
         self.fit.prune_and_fit(t_s)
-        return (
-            self.axes[0].update(t_s, y_ned_mps[0], a_int_mps[0], b_int),
-            self.axes[1].update(t_s, y_ned_mps[1], a_int_mps[1], b_int),
-            self.axes[2].update(t_s, y_ned_mps[2], a_int_mps[2], b_int),
+        v = (
+            self.axes[0].update(t_s, y_ned_mps[0], a_int_mps[0], ints),
+            self.axes[1].update(t_s, y_ned_mps[1], a_int_mps[1], ints),
+            self.axes[2].update(t_s, y_ned_mps[2], a_int_mps[2], ints),
         )
+        recent = self._recent
+        for j, vj in enumerate(v):
+            if math.isfinite(vj.residual_mps) and self.axes[j].fault is None:
+                recent.append((t_s, j, vj.residual_mps, ints[0]))
+        while recent and recent[0][0] < t_s - self.cfg.change_window_s:
+            recent.popleft()
+        return self._decide(t_s, v)
+
+    def _decide(
+        self, t_s: float, v: tuple[AxisVerdict, AxisVerdict, AxisVerdict]
+    ) -> tuple[AxisVerdict, AxisVerdict, AxisVerdict]:
+        """Isolate the axes whose tests failed k times, unless an accelerometer change
+        explains the residuals of all axes better (module docstring)."""
+        wants: list[tuple[int, FaultKind]] = []
+        for j, ax in enumerate(self.axes):
+            k = ax.wants_isolation()
+            if k is not None:
+                wants.append((j, k))
+        if not wants:
+            return v
+        out = list(v)
+        j0, k0 = wants[0]
+        others = [a for a in self.axes if a.fault is not None and a.fault.kind in RESIDUAL_KINDS]
+        if len(wants) >= 2 or others:
+            # two velocity sensors failing at once is far less likely than one IMU or
+            # attitude error seen on every axis: blame the IMU, withdraw the isolations
+            sig = (self.axes[0].sigma_r_mps, self.axes[1].sigma_r_mps, self.axes[2].sigma_r_mps)
+            _, db, t_c = classify_change(j0, list(self._recent), sig)
+            self._rebase(t_s, t_s if math.isnan(t_c) else t_c, db, self.axes[j0].axis)
+            return tuple(  # type: ignore[return-value]
+                AxisVerdict(False, x.residual_mps, x.test_ratio, self.axes[i].state)
+                for i, x in enumerate(out)
+            )
+        if k0 is FaultKind.BIAS and self.fit.ref is not None and not self.fit.frozen_bias:
+            sig = (
+                self.axes[0].sigma_r_mps,
+                self.axes[1].sigma_r_mps,
+                self.axes[2].sigma_r_mps,
+            )
+            kind, db, t_c = classify_change(j0, list(self._recent), sig)
+            if kind == "accel":
+                self._rebase(t_s, t_c, db, self.axes[j0].axis)
+                return tuple(  # type: ignore[return-value]
+                    AxisVerdict(False, x.residual_mps, x.test_ratio, self.axes[i].state)
+                    for i, x in enumerate(out)
+                )
+        for j, kind_j in wants:
+            self.axes[j].isolate(t_s, kind_j)
+            out[j] = AxisVerdict(False, v[j].residual_mps, v[j].test_ratio, self.axes[j].state)
+        return (out[0], out[1], out[2])
+
+    def _rebase(self, t_s: float, t_c: float, db: tuple[float, float, float], by: AxisName) -> None:
+        """An accelerometer change at t_c: the reference restarts from samples after it."""
+        self.accel_changes.append(AccelChange(t_s, t_c, db, by))
+        self.fit.drop_before(math.inf)
+        for ax in self.axes:
+            ax.rebase()
+        self._recent.clear()
+
+    def set_unaided(self, t_s: float, horizontal: bool | None, vertical: bool | None) -> None:
+        """Apply the autopilot's word on what its velocity rests on (None: no word)."""
+        if horizontal is not None:
+            self.axes[0].set_unaided(t_s, not horizontal)
+            self.axes[1].set_unaided(t_s, not horizontal)
+        if vertical is not None:
+            self.axes[2].set_unaided(t_s, not vertical)
 
     def faulty_axes(self) -> list[int]:
         """Indices (0 n, 1 e, 2 d) of the axes currently isolated, in isolation order."""
         idx = [i for i, a in enumerate(self.axes) if a.fault is not None]
         return sorted(idx, key=lambda i: self.axes[i]._t_isolated_s)
 
-    def bias_body_mps2(self) -> list[float]:
-        """b̂: the body-frame (FRD) accelerometer bias estimate (m/s²), zero before the fit."""
-        return list(self.fit.bias_body_mps2)
-
     def states(self) -> dict[str, str]:
         return {ax: m.state.value for ax, m in zip(NED_AXES, self.axes, strict=True)}
+
+    def armed(self) -> bool:
+        """Residual tests are running on every healthy axis."""
+        return all(a.armed() or a.fault is not None for a in self.axes)

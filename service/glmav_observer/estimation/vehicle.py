@@ -15,9 +15,24 @@ the truth by about its age times |V̇|. With ``propagate_held_measurement`` it i
 forward with the IMU instead, y(t) ≈ y(t_y) + ∫_{t_y}^{t} (E f + g e_d − b̂) dt (V̇ = E Γ,
 equations.md), which removes that lag (docs/observer.md measures both).
 
-Accelerometer bias. The FDI estimates the earth-frame bias b̂ from vetted samples
-(:mod:`glmav_observer.estimation.fdi`); with ``compensate_accel_bias`` the bank is fed
-f − Eᵀ b̂, so that a dead-reckoned axis drifts with the error of b̂ only.
+Accelerometer bias and heading error. The FDI fits the body-frame accelerometer bias b̂
+and the attitude's heading error δψ̂ from vetted samples
+(:mod:`glmav_observer.estimation.fdi`). They never enter the bank: ``full`` and the
+paper's configurations run on the IMU as it is, so a bad fit cannot poison them. With
+``compensate_accel_bias`` the *active* estimate's dead-reckoned axis gets the fit's
+correction since the hand-over, −(B_j(t) − B_j(t_h)) b̂ + (C_j(t) − C_j(t_h)) δψ̂, using
+only the components the fit has observed (|θ̂_k| > 2σ_k) and a bounded b̂.
+
+IMU shocks. A single specific-force sample far from its neighbours (a shock, a corrupt
+frame within the plausible range) is held out for one sample (:mod:`despike`); a real
+step is accepted one sample late.
+
+Missing stream. No velocity measurement for the timeout is not a fault of an axis: every
+configuration dead-reckons (all axes unmeasured) until samples come back; no switch.
+
+The autopilot's word. ``LOCAL_POSITION_NED`` from ArduPilot or PX4 is the autopilot's own
+estimate; while ``EKF_STATUS_REPORT`` or ``GPS_RAW_INT`` say it is not aided (GPS lost), the
+axes concerned are isolated as ``unaided`` and re-admitted when it is aided again.
 
 Active estimate and hand-over. ``full`` while every axis is healthy. When the FDI
 isolates axis j, the configuration without j (n -> c2, e -> c3, d -> c1) is started
@@ -39,9 +54,11 @@ from typing import Any
 import numpy as np
 
 from glmav_observer.estimation.bank import ObserverBank
-from glmav_observer.estimation.fdi import AxisState, FaultDetector, FdiConfig
+from glmav_observer.estimation.despike import Despiker
+from glmav_observer.estimation.fdi import FaultDetector, FdiConfig, Reference
 from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact
 from glmav_observer.ingest.samples import (
+    AidingSample,
     AttitudeSample,
     ImuSample,
     Sample,
@@ -78,7 +95,7 @@ class EstimatorConfig:
     propagate_held_measurement: bool = True
     compensate_accel_bias: bool = True
     max_gap_s: float = 1.0
-    handover_contamination_mps: float = 0.1
+    handover_contamination_mps: float = 1.0
     metrics_skip_s: float = 3.0
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
@@ -171,6 +188,12 @@ class VehicleEstimator:
         cfg = self.cfg
         self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2)
         self.fdi = FaultDetector(cfg.fdi)
+        self.despike = Despiker()
+        self._c_int: list[float] = [0.0, 0.0, 0.0]
+        self._ints_handover: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self._ref_handover: Reference | None = None
+        self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
+        self._n_accel_changes = 0
         self.t_bank_s: float | None = None
         self.t_first_s: float | None = None
         self._euler: Vec3 | None = None
@@ -220,6 +243,9 @@ class VehicleEstimator:
         if isinstance(s, TruthSample):
             self._truth(s, out)
             return out
+        if isinstance(s, AidingSample):
+            self._aiding_sample(s)
+            return out
         t = s.t_boot_s
         if self.t_bank_s is not None and t > self.t_bank_s:
             if t - self.t_bank_s > self.cfg.max_gap_s:
@@ -235,7 +261,13 @@ class VehicleEstimator:
                 k = 1.0 if self._imu_interval_s == 0.0 else 0.02
                 self._imu_interval_s += k * (dt_i - self._imu_interval_s)
             self._t_imu_s = t
-            self._f = s.f_body_mps2
+            f_used = self.despike.filter(s.f_body_mps2)
+            if f_used is None:
+                self.counters["imu_spike_held"] += 1
+                if self._f is None:
+                    return out
+                f_used = self._f
+            self._f = f_used
             self._omega_imu = s.omega_body_radps
             if self.t_bank_s is not None:
                 self._check_missing(t)
@@ -265,17 +297,17 @@ class VehicleEstimator:
                 for i in range(3)
             ]
         f = self._f
-        f_bank: Vec3 | list[float] = f
-        if cfg.compensate_accel_bias:
-            f_bank = [f[0] - b[0], f[1] - b[1], f[2] - b[2]]
         mask = self._mask()
-        self.bank.step(dt, self._euler, self._omega(), f_bank, y, mask)
+        self.bank.step(dt, self._euler, self._omega(), f, y, mask)
         E = self.bank.e_last.ravel().tolist()
         self._E = E
         a = _e_times(E, f)  # earth-frame acceleration E Γ = E f + g e_d (V̇ = E Γ)
         a[2] += cfg.g_mps2
         for i in range(3):
             self._a_int[i] += a[i] * dt
+        # C = ∫ (−a_e, a_n, 0) dt: the heading-error regressor (fdi module docstring)
+        self._c_int[0] -= a[1] * dt
+        self._c_int[1] += a[0] * dt
         bi = self._b_int
         for k in range(9):
             bi[k] += E[k] * dt  # B = ∫ E dt (fdi.BiasFit)
@@ -323,7 +355,9 @@ class VehicleEstimator:
             return
         faulty_before = set(self.fdi.faulty_axes())
         imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
-        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, tuple(self._b_int), imu_hz)
+        verdicts = self.fdi.update(
+            t, s.v_ned_mps, self._a_int, self._ints(), imu_hz, self.despike.noise_var_mps2()
+        )
         if t > self._t_y_s:  # running mean of the measurement interval (time constant 20 samples)
             dt_y = min(t - self._t_y_s, self.cfg.max_gap_s)
             if self._y_interval_s == 0.0:
@@ -341,21 +375,48 @@ class VehicleEstimator:
             self._missing = False
         self._after_fdi(t, faulty_before)
 
+    def _ints(self) -> tuple[tuple[float, ...], tuple[float, float, float]]:
+        """(B, C): the integrals the FDI's regressors are built from."""
+        c = self._c_int
+        return tuple(self._b_int), (c[0], c[1], c[2])
+
+    def _aiding_sample(self, s: AidingSample) -> None:
+        """The autopilot's word on what its velocity rests on (any source saying 'not
+        aided' wins; a source that says nothing about a direction does not vote)."""
+        self._aiding[s.source] = (s.horizontal_aided, s.vertical_aided)
+        if self.t_bank_s is None:
+            return
+        horiz = [h for h, _ in self._aiding.values() if h is not None]
+        vert = [v for _, v in self._aiding.values() if v is not None]
+        faulty_before = set(self.fdi.faulty_axes())
+        self.fdi.set_unaided(s.t_boot_s, all(horiz) if horiz else None, all(vert) if vert else None)
+        if set(self.fdi.faulty_axes()) != faulty_before:
+            self.counters[f"aiding_{s.reason or 'restored'}"] += 1
+            self._after_fdi(s.t_boot_s, faulty_before)
+
     def _check_missing(self, t: float) -> None:
         """No velocity measurement for ``missing_timeout_s``: a dropout of every axis."""
         # the timeout follows the stream's own rate (real vehicles send 1-5 Hz, unevenly)
         timeout = max(self.cfg.fdi.missing_timeout_s, 3.5 * self._y_interval_s)
         if self._missing or self._y_interval_s == 0.0 or t - self._t_y_s <= timeout:
             return
+        # not an axis fault (a late burst on a loaded link looks the same): every
+        # configuration dead-reckons until samples come back; no switch
         self._missing = True
         self.counters["measurement_missing"] += 1
-        faulty_before = set(self.fdi.faulty_axes())
-        for ax in self.fdi.axes:
-            ax.force_dropout(t)
         self._use = [False, False, False]
-        self._after_fdi(t, faulty_before)
 
     def _after_fdi(self, t: float, faulty_before: set[int]) -> None:
+        changes = self.fdi.accel_changes
+        while self._n_accel_changes < len(changes):
+            ch = changes[self._n_accel_changes]
+            self._n_accel_changes += 1
+            self.faults.append(
+                FaultEvent(
+                    "body", "accel_bias", ch.t_detect_s, ch.t_change_s, ch.delta_bias_body_mps2
+                )
+            )
+            self.counters["fault_accel_bias"] += 1
         faulty = self.fdi.faulty_axes()
         for j in faulty:
             if j not in faulty_before:
@@ -368,15 +429,14 @@ class VehicleEstimator:
             self._switch(t, wanted, faulty[0] if faulty else None)
 
     def _switch(self, t: float, to: str, lost_idx: int | None) -> None:
-        ned = self.bank.x_hat_ned_mps()
-        before = ned[_CONFIG_INDEX[self._active]].tolist()
+        before = self._active_ned(self.bank.x_hat_ned_mps().tolist())
         v0 = list(before)
         reason = "recovered"
         if lost_idx is not None:
             ax = self.fdi.axes[lost_idx]
             reason = f"{ax.fault.kind if ax.fault else 'fault'}_{NED_AXES[lost_idx]}"
             if self._active == "full":
-                pred = ax.predict_mps(self._a_int[lost_idx], tuple(self._b_int))
+                pred = ax.predict_mps(self._a_int[lost_idx], self._ints())
                 if (
                     math.isfinite(pred)
                     and abs(pred - v0[lost_idx]) > self.cfg.handover_contamination_mps
@@ -384,6 +444,8 @@ class VehicleEstimator:
                     self.counters["handover_from_dead_reckoning"] += 1
                     v0[lost_idx] = pred
             self._t_handover_s = t
+            self._ints_handover = self._ints()
+            self._ref_handover = ax.reference()
         assert self._euler is not None
         self.bank.set_state_ned(to, v0, self._euler)
         self._t_seed_s[_CONFIG_INDEX[to]] = t
@@ -433,7 +495,7 @@ class VehicleEstimator:
                 )
             )
         a = _CONFIG_INDEX[self._active]
-        a_ned = (ned_l[a][0], ned_l[a][1], ned_l[a][2])
+        a_ned = self._active_ned(ned_l)
         lost_a = LOST_AXIS_OF_CONFIG[self._active]
         if n_faulty == 0:
             health_a = "ok"
@@ -463,6 +525,37 @@ class VehicleEstimator:
             )
             self._pending_switch = None
         self._latest_active_ned = a_ned
+
+    def _active_ned(self, ned_l: list[list[float]]) -> Vec3:
+        """The active estimate: the active configuration's NED velocity, its dead-reckoned
+        axis corrected by the fit (``compensate_accel_bias``)."""
+        v = ned_l[_CONFIG_INDEX[self._active]]
+        lost = LOST_AXIS_OF_CONFIG[self._active]
+        if lost is None or not self.cfg.compensate_accel_bias:
+            return (v[0], v[1], v[2])
+        j = NED_AXES.index(lost)
+        out = [v[0], v[1], v[2]]
+        out[j] += self._lost_axis_correction(j)
+        return (out[0], out[1], out[2])
+
+    def _lost_axis_correction(self, j: int) -> float:
+        """The fit's bias and heading correction of the dead-reckoned axis j since the
+        hand-over (module docstring); only observed components (|θ̂_k| > 2σ_k) count."""
+        ref = self._ref_handover
+        h = self._ints_handover
+        if ref is None or h is None:
+            return 0.0
+        theta = ref.theta
+        sd = np.sqrt(np.clip(np.diag(ref.cov), 0.0, None))
+        b_int, c_int = self._ints()
+        k = 3 * j
+        corr = 0.0
+        for m in range(3):
+            if abs(theta[3 + m]) > 2.0 * sd[3 + m]:
+                corr -= (b_int[k + m] - h[0][k + m]) * theta[3 + m]
+        if abs(theta[6]) > 2.0 * sd[6]:
+            corr += (c_int[j] - h[1][j]) * theta[6]
+        return corr
 
     def _health(self, t: float, out: list[Record]) -> None:
         if self._next_health_s is None or t < self._next_health_s:
@@ -519,6 +612,3 @@ class VehicleEstimator:
     def rmse_ned_mps(self) -> dict[str, Vec3 | None]:
         """Per configuration (and ``active``): RMSE against SIM_STATE per NED axis."""
         return {c: st.rmse() for c, st in self.errors.items()}
-
-    def axis_states(self) -> dict[str, AxisState]:
-        return {ax: m.state for ax, m in zip(NED_AXES, self.fdi.axes, strict=True)}

@@ -9,6 +9,8 @@ Units at the edge (MAVLink common.xml):
   vehicle (ArduPilot sends mG and mrad/s, the defaults of :class:`RawImuScale`).
 - ``LOCAL_POSITION_NED``: m, m/s (NED), ``time_boot_ms``.
 - ``SIM_STATE``: rad, m/s (NED); no time field.
+- ``EKF_STATUS_REPORT`` (ArduPilot), ``GPS_RAW_INT``: what the autopilot's velocity rests
+  on (:class:`AidingSample`); stamped with the vehicle's latest time, like ``SIM_STATE``.
 
 Time fields are returned raw in µs with their kind, so that the per-vehicle clock
 (:mod:`glmav_observer.ingest.clock`) decides (UNIX-epoch ``time_usec`` detection).
@@ -22,6 +24,7 @@ from enum import Enum
 from typing import Any
 
 from glmav_observer.ingest.samples import (
+    AidingSample,
     AttitudeSample,
     ImuSample,
     ImuSource,
@@ -38,8 +41,27 @@ MRAD_TO_RAD = 1e-3
 
 #: Messages that become samples.
 SAMPLE_MESSAGES: frozenset[str] = frozenset(
-    {"ATTITUDE", "RAW_IMU", "SCALED_IMU", "HIGHRES_IMU", "LOCAL_POSITION_NED", "SIM_STATE"}
+    {
+        "ATTITUDE",
+        "RAW_IMU",
+        "SCALED_IMU",
+        "HIGHRES_IMU",
+        "LOCAL_POSITION_NED",
+        "SIM_STATE",
+        "EKF_STATUS_REPORT",
+        "GPS_RAW_INT",
+    }
 )
+#: Messages without a usable vehicle time: stamped with the vehicle's latest time and not
+#: submitted to its clock (GPS_RAW_INT's time_usec is the receiver's, often UNIX time).
+UNTIMED_MESSAGES: frozenset[str] = frozenset({"SIM_STATE", "EKF_STATUS_REPORT", "GPS_RAW_INT"})
+
+#: EKF_STATUS_REPORT flags (MAVLink ``ESTIMATOR_STATUS_FLAGS``).
+EKF_VELOCITY_HORIZ = 2
+EKF_VELOCITY_VERT = 4
+EKF_UNINITIALIZED = 1024
+#: GPS_RAW_INT fix types below this give no velocity (``GPS_FIX_TYPE_3D_FIX``).
+GPS_FIX_3D = 3
 
 
 class TimeKind(Enum):
@@ -71,7 +93,7 @@ def message_time_us(msg: Any) -> tuple[int, TimeKind]:
     name = msg.get_type()
     if name in ("RAW_IMU", "HIGHRES_IMU"):
         return int(msg.time_usec), TimeKind.USEC
-    if name == "SIM_STATE":
+    if name in UNTIMED_MESSAGES:
         return 0, TimeKind.NONE
     return int(msg.time_boot_ms) * 1000, TimeKind.BOOT_MS
 
@@ -135,4 +157,22 @@ def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
         euler = _finite3((msg.roll, msg.pitch, msg.yaw), "SIM_STATE angles")
         vel3 = _finite3((msg.vn, msg.ve, msg.vd), "SIM_STATE velocity")
         return TruthSample(sysid, t_boot_s, euler, vel3)
+    if name == "EKF_STATUS_REPORT":
+        flags = int(msg.flags)
+        horiz = bool(flags & EKF_VELOCITY_HORIZ) and not flags & EKF_UNINITIALIZED
+        vert = bool(flags & EKF_VELOCITY_VERT) and not flags & EKF_UNINITIALIZED
+        reasons = [
+            r
+            for r, ok in (
+                ("ekf_velocity_horiz_unaided", horiz),
+                ("ekf_velocity_vert_unaided", vert),
+            )
+            if not ok
+        ]
+        return AidingSample(sysid, t_boot_s, name, horiz, vert, ",".join(reasons))
+    if name == "GPS_RAW_INT":
+        fix = int(msg.fix_type)
+        ok = fix >= GPS_FIX_3D
+        # the GPS says nothing about the vertical velocity an autopilot may take from a baro
+        return AidingSample(sysid, t_boot_s, name, ok, None, "" if ok else f"gps_fix_{fix}")
     raise ConversionError("unknown_message", f"{name} is not a sample message")

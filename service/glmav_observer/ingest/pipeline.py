@@ -27,6 +27,7 @@ from typing import Any
 from glmav_observer.ingest.clock import Admission, ClockConfig, VehicleClock
 from glmav_observer.ingest.convert import (
     SAMPLE_MESSAGES,
+    UNTIMED_MESSAGES,
     ConversionError,
     RawImuScale,
     message_time_us,
@@ -226,7 +227,7 @@ class Ingest:
         self, v: VehicleInput, name: str, t_s: float, sample: Sample, events: list[IngestEvent]
     ) -> None:
         """The vehicle's clock decides; an admitted sample is appended to ``events``."""
-        if name != "SIM_STATE":
+        if name not in UNTIMED_MESSAGES:
             adm = v.clock.admit(name, t_s)
             if adm is Admission.RESET:
                 events.append(VehicleReset(v.sysid, t_s, "clock_reset"))

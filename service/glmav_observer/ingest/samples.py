@@ -64,4 +64,20 @@ class TruthSample:
     v_ned_mps: Vec3
 
 
-Sample = AttitudeSample | ImuSample | VelocitySample | TruthSample
+@dataclass(frozen=True, slots=True)
+class AidingSample:
+    """What the autopilot says its velocity output rests on (``LOCAL_POSITION_NED`` is the
+    autopilot's own estimate, not a sensor): from ``EKF_STATUS_REPORT`` (ArduPilot) or
+    ``GPS_RAW_INT``. ``horizontal_aided`` / ``vertical_aided`` are None when the message
+    says nothing about that direction. ``reason`` names what failed (e.g. ``gps_fix_1``,
+    ``ekf_velocity_horiz_unaided``). No time field: stamped like ``SIM_STATE``."""
+
+    sysid: int
+    t_boot_s: float
+    source: str  # "EKF_STATUS_REPORT" | "GPS_RAW_INT"
+    horizontal_aided: bool | None
+    vertical_aided: bool | None
+    reason: str
+
+
+Sample = AttitudeSample | ImuSample | VelocitySample | TruthSample | AidingSample

@@ -75,10 +75,11 @@ VELOCITY: Schema = _object(
 
 _FAULT: Schema = _object(
     {
-        "axis": {"enum": _AXES},
-        "kind": {"enum": ["dropout", "freeze", "bias", "noise"]},
+        "axis": {"enum": [*_AXES, "body"]},
+        "kind": {"enum": ["dropout", "freeze", "bias", "noise", "unaided", "accel_bias"]},
         "t_detect_s": _TIME,
         "t_onset_s": {"type": ["number", "null"]},
+        "bias_body_mps2": {"anyOf": [_VEC3, {"type": "null"}]},
     }
 )
 

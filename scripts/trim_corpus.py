@@ -1,0 +1,67 @@
+"""Trim the ArduPilot SITL corpus (``../shared/data/ardupilot-sitl``) into the repo's test data.
+
+Keeps only the messages the service and the corpus tests use, as tlog records (8-byte time
+stamp + the frame's original bytes, so CRCs and signatures are unchanged), xz-compressed,
+and the sidecar JSON as it is. Run from the repo root:
+
+    python scripts/trim_corpus.py ../shared/data/ardupilot-sitl tests/data/ardupilot_sitl
+"""
+
+from __future__ import annotations
+
+import argparse
+import lzma
+import shutil
+import sys
+from pathlib import Path
+
+from pymavlink import mavutil
+
+KEEP = frozenset(
+    {
+        "HEARTBEAT",
+        "ATTITUDE",
+        "RAW_IMU",
+        "LOCAL_POSITION_NED",
+        "SIM_STATE",
+        "GPS_RAW_INT",
+        "EKF_STATUS_REPORT",
+        "STATUSTEXT",
+    }
+)
+
+
+def trim(src: Path, dst: Path) -> tuple[int, int]:
+    mlog = mavutil.mavlink_connection(str(src), robust_parsing=True)
+    out = bytearray()
+    kept = total = 0
+    while True:
+        m = mlog.recv_match()
+        if m is None:
+            break
+        total += 1
+        if m.get_type() not in KEEP:
+            continue
+        t_us = round(m._timestamp * 1e6)
+        out += t_us.to_bytes(8, "big") + m.get_msgbuf()
+        kept += 1
+    dst.write_bytes(lzma.compress(bytes(out), preset=9 | lzma.PRESET_EXTREME))
+    return kept, total
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("src", type=Path)
+    ap.add_argument("dst", type=Path)
+    a = ap.parse_args()
+    a.dst.mkdir(parents=True, exist_ok=True)
+    for tlog in sorted(a.src.glob("*.tlog")):
+        kept, total = trim(tlog, a.dst / (tlog.name + ".xz"))
+        shutil.copyfile(tlog.with_suffix(".json"), a.dst / tlog.with_suffix(".json").name)
+        size = (a.dst / (tlog.name + ".xz")).stat().st_size
+        print(f"{tlog.name}: kept {kept} of {total} messages, {size / 1e6:.2f} MB xz")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
