@@ -69,6 +69,8 @@ import numpy as np
 
 from glmav_observer.records import NED_AXES, AxisName, FaultEvent
 
+#: Samples of an axis before a candidate change time (classify_change: a step needs a before).
+MIN_PRE_SAMPLES = 5
 #: Vetted samples of a recovered axis before its prediction comes from the live fit again.
 REARM_ROWS = 20
 #: Median of the χ² distribution with one degree of freedom.
@@ -293,13 +295,22 @@ def classify_change(
     recent: list[tuple[float, int, float, tuple[float, ...]]],
     sigma_mps: tuple[float, float, float],
 ) -> tuple[str, tuple[float, float, float], float]:
-    """Velocity step on ``axis`` or accelerometer-bias step? (module docstring).
+    """Velocity step on ``axis``, accelerometer-bias step, or a drift of the reference?
 
     ``recent``: (t, axis, residual, B(t) flat 9) of every axis over the last
-    ``change_window_s``. Returns (``"velocity"`` | ``"accel"``, Δb (body, m/s²), t_c).
-    Each model is fitted for every candidate change time t_c (a sample time of ``axis``);
-    residuals are weighted by their axis's σ_r; the lower BIC wins (the accelerometer
-    model has 3 parameters, the step 1).
+    ``change_window_s``. Three explanations of the residuals since a change time t_c:
+
+    - ``"velocity"``: a step on ``axis`` alone, r_j = β (a velocity-sensor bias);
+    - ``"accel"``: an accelerometer-bias step, r_k = −(B_k(τ) − B_k(t_c)) Δb on every axis;
+    - ``"ramp"``: a ramp on ``axis`` alone, r_j = s (τ − t_c): the reference drifting away
+      (an attitude error met by an acceleration, the autopilot's own estimate easing
+      back), not a sensor step; or a constant offset of ``axis`` over the whole window
+      (a reference fitted on too little data): both are ``"ramp"``.
+
+    A change must have at least ``MIN_PRE_SAMPLES`` samples of ``axis`` before it (a step
+    needs a before); with none, ``"undecided"``. Each is fitted for every candidate t_c (a sample time of ``axis``); residuals are
+    weighted by their axis's σ_r; the lowest BIC wins (parameters: 3 for the
+    accelerometer, 1 for the others, plus t_c). Returns (kind, Δb (body, m/s²), t_c).
     """
     if len(recent) < 6:
         return "velocity", (0.0, 0.0, 0.0), math.nan
@@ -308,8 +319,15 @@ def classify_change(
     res = np.array([r[2] for r in recent])
     Bf = np.array([r[3] for r in recent]).reshape(-1, 3, 3)
     s = np.asarray(sigma_mps)[ax]
-    cand = t[ax == axis]
+    t_axis = t[ax == axis]
+    cand = t_axis[MIN_PRE_SAMPLES:]
+    if len(cand) < 3:
+        return "undecided", (0.0, 0.0, 0.0), math.nan
+    on_axis = ax == axis
+    offset = float(np.median(res[on_axis]))
+    sse_o = float(np.sum(((res - np.where(on_axis, offset, 0.0)) / s) ** 2))
     best_v = (math.inf, 0.0)
+    best_r = (math.inf, 0.0)
     best_a = (math.inf, 0.0, np.zeros(3))
     n_all = len(t)
     for tc in cand[:-2]:
@@ -321,6 +339,13 @@ def classify_change(
         beta = float(np.median(res[on_j])) if on_j.any() else 0.0
         pred_v = np.where(on_j, beta, 0.0)
         sse_v = float(np.sum(((res - pred_v) / s) ** 2))
+        # ramp on `axis`
+        u = np.where(on_j, t - tc, 0.0) / s
+        uu = float(u @ u)
+        slope = float(u @ (res / s)) / uu if uu > 0.0 else 0.0
+        sse_r = float(np.sum((res / s - u * slope) ** 2))
+        if sse_r < best_r[0]:
+            best_r = (sse_r, float(tc))
         # accelerometer step: r_k = −(B_k(τ) − B_k(t_c)) Δb for τ ≥ t_c
         i_c = int(np.searchsorted(t, tc))
         Bc = Bf[i_c] if i_c < len(Bf) else Bf[-1]
@@ -338,9 +363,14 @@ def classify_change(
     ln_n = math.log(n_all)
     bic_v = n_all * math.log(max(best_v[0], 1e-12) / n_all) + 2 * ln_n
     bic_a = n_all * math.log(max(best_a[0], 1e-12) / n_all) + 4 * ln_n
+    if sse_o < best_r[0]:
+        best_r = (sse_o, float(t_axis[0]))
+    bic_r = n_all * math.log(max(best_r[0], 1e-12) / n_all) + 2 * ln_n
     db3 = best_a[2]
-    if bic_a < bic_v:
+    if bic_a < bic_v and bic_a <= bic_r:
         return "accel", (float(db3[0]), float(db3[1]), float(db3[2])), best_a[1]
+    if bic_r < bic_v:
+        return "ramp", (0.0, 0.0, 0.0), best_r[1]
     return "velocity", (0.0, 0.0, 0.0), best_v[1]
 
 
@@ -366,7 +396,9 @@ class AxisMonitor:
     _t_isolated_s: float = 0.0
     _t_last_vetted_s: float | None = None
     _frozen: Reference | None = None
-    _fault_level_mps: float = 0.0
+    _fault_level_mps: float = 0.0  # signed median residual when a bias was isolated
+    _iso_resid: deque[float] = field(default_factory=lambda: deque(maxlen=24))
+    _stepped_back_level: float | None = None
     _rearm_rows: int = 0
     _scale: float = 0.0  # s_j of the last test
     var_imu_mps2: float = 0.0  # σ²_imu of the module docstring, set by the detector
@@ -553,7 +585,9 @@ class AxisMonitor:
             self._frozen = self.fit.ref
         self.fit.frozen_bias = True
         rb = list(self._resid)[-self.cfg.bias_samples :]
-        self._fault_level_mps = abs(statistics.median(rb)) if rb else 0.0
+        self._fault_level_mps = statistics.median(rb) if rb else 0.0
+        self._iso_resid.clear()
+        self._stepped_back_level = None
         self._pending.clear()
         self._resid.clear()
         self._fail_run = 0
@@ -579,7 +613,7 @@ class AxisMonitor:
             return AxisVerdict(False, r, ratio, self.state)  # the autopilot decides (clear_unaided)
         slack = self.bias_threshold_mps() + 3.0 * self.sigma_dead_reckoning_mps(t_s)
         if self.fault is not None and self.fault.kind == FaultKind.BIAS.value:
-            slack = max(self.bias_threshold_mps(), 0.5 * self._fault_level_mps)
+            return self._bias_recovery(t_s, r=r, repeated=repeated, ratio=ratio)
         if (
             self.fault is not None
             and self.fault.kind == FaultKind.DROPOUT.value
@@ -593,6 +627,47 @@ class AxisMonitor:
             and (noise_ratio <= 1.0 or math.isinf(slack))
             and not (bias_ratio * self.bias_threshold_mps() > slack)
         )
+        if not healthy:
+            self._healthy_since_s = None
+            self.state = AxisState.FAULTY
+            return AxisVerdict(False, r, ratio, self.state)
+        if self._healthy_since_s is None:
+            self._healthy_since_s = t_s
+        self.state = AxisState.RECOVERING
+        if t_s - self._healthy_since_s >= cfg.recovery_s:
+            self._readmit()
+            return AxisVerdict(True, r, ratio, self.state)
+        return AxisVerdict(False, r, ratio, self.state)
+
+    def _bias_recovery(self, t_s: float, *, r: float, repeated: bool, ratio: float) -> AxisVerdict:
+        """A bias fault ends when the measurement steps back by about the fault's size
+        (a drop of more than half of it between two successive windows of
+        ``bias_samples``), or comes back within a fixed level of the dead reckoning (half
+        the fault, at least ``bias_threshold_mps``). The level does not grow with the dead
+        reckoning's uncertainty: a persistent bias would pass a growing one. After the
+        step back the level must hold (within the threshold) for ``recovery_s``."""
+        cfg = self.cfg
+        n = cfg.bias_samples
+        beta = self._fault_level_mps
+        hist = self._iso_resid
+        if math.isfinite(r):
+            hist.append(r)
+        healthy = False
+        if len(hist) >= n and not repeated and math.isfinite(r):
+            now = statistics.median(list(hist)[-n:])
+            if self._stepped_back_level is None and len(hist) >= 2 * n:
+                before = statistics.median(list(hist)[-2 * n : -n])
+                step = now - before
+                if step * beta < 0.0 and abs(step) > 0.5 * abs(beta):
+                    self._stepped_back_level = now
+            if self._stepped_back_level is not None:
+                healthy = abs(now - self._stepped_back_level) <= max(
+                    cfg.bias_threshold_mps, 3.0 * self.sigma_r_mps
+                )
+                if not healthy:
+                    self._stepped_back_level = None  # moved again: wait for a new step
+            else:
+                healthy = abs(now) <= max(cfg.bias_threshold_mps, 0.5 * abs(beta))
         if not healthy:
             self._healthy_since_s = None
             self.state = AxisState.FAULTY
@@ -655,6 +730,7 @@ class FaultDetector:
     fit: ReferenceFit = field(init=False)
     axes: tuple[AxisMonitor, AxisMonitor, AxisMonitor] = field(init=False)
     accel_changes: list[AccelChange] = field(default_factory=list)
+    reference_drifts: int = 0
     #: (t, axis, residual, B flat 9) of every axis over the last change_window_s
     _recent: deque[tuple[float, int, float, tuple[float, ...]]] = field(default_factory=deque)
 
@@ -737,6 +813,15 @@ class FaultDetector:
                 self.axes[2].sigma_r_mps,
             )
             kind, db, t_c = classify_change(j0, list(self._recent), sig)
+            if kind == "undecided":
+                return v  # the tests fail again on the next sample, with more history
+            if kind == "ramp":
+                self.reference_drifts += 1
+                self._rebase(t_s, t_c, None, self.axes[j0].axis)
+                return tuple(  # type: ignore[return-value]
+                    AxisVerdict(False, x.residual_mps, x.test_ratio, self.axes[i].state)
+                    for i, x in enumerate(out)
+                )
             if kind == "accel":
                 self._rebase(t_s, t_c, db, self.axes[j0].axis)
                 return tuple(  # type: ignore[return-value]
@@ -748,9 +833,13 @@ class FaultDetector:
             out[j] = AxisVerdict(False, v[j].residual_mps, v[j].test_ratio, self.axes[j].state)
         return (out[0], out[1], out[2])
 
-    def _rebase(self, t_s: float, t_c: float, db: tuple[float, float, float], by: AxisName) -> None:
-        """An accelerometer change at t_c: the reference restarts from samples after it."""
-        self.accel_changes.append(AccelChange(t_s, t_c, db, by))
+    def _rebase(
+        self, t_s: float, t_c: float, db: tuple[float, float, float] | None, by: AxisName
+    ) -> None:
+        """An accelerometer change (``db``) or a reference drift (None) at t_c: the
+        reference restarts from the samples after it."""
+        if db is not None:
+            self.accel_changes.append(AccelChange(t_s, t_c, db, by))
         self.fit.drop_before(math.inf)
         for ax in self.axes:
             ax.rebase()

@@ -519,18 +519,21 @@ class VehicleEstimator:
         )
         if self._pending_switch is not None:
             sw = self._pending_switch
-            jump = math.dist(sw.v_before_ned_mps, a_ned)
+            # the discontinuity: the new active against what the old one says at this same
+            # time (not against its value at the switch: the vehicle moved meanwhile)
+            jump = math.dist(self._active_ned(ned_l, sw.from_config), a_ned)
             self.switches[self.switches.index(sw)] = SwitchEvent(
                 sw.t_boot_s, sw.from_config, sw.to_config, sw.reason, sw.v_before_ned_mps, jump
             )
             self._pending_switch = None
         self._latest_active_ned = a_ned
 
-    def _active_ned(self, ned_l: list[list[float]]) -> Vec3:
-        """The active estimate: the active configuration's NED velocity, its dead-reckoned
-        axis corrected by the fit (``compensate_accel_bias``)."""
-        v = ned_l[_CONFIG_INDEX[self._active]]
-        lost = LOST_AXIS_OF_CONFIG[self._active]
+    def _active_ned(self, ned_l: list[list[float]], config: str | None = None) -> Vec3:
+        """The active estimate if ``config`` (default: the active one) were active: its NED
+        velocity, its dead-reckoned axis corrected by the fit (``compensate_accel_bias``)."""
+        config = self._active if config is None else config
+        v = ned_l[_CONFIG_INDEX[config]]
+        lost = LOST_AXIS_OF_CONFIG[config]
         if lost is None or not self.cfg.compensate_accel_bias:
             return (v[0], v[1], v[2])
         j = NED_AXES.index(lost)
