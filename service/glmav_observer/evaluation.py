@@ -23,7 +23,13 @@ from typing import Any, Literal
 
 import numpy as np
 
-from glmav_observer.records import NED_AXES, Record, TruthRecord, VelocityRecord
+from glmav_observer.records import (
+    NED_AXES,
+    MeasurementRecord,
+    Record,
+    TruthRecord,
+    VelocityRecord,
+)
 
 FaultKindName = Literal["bias", "freeze", "nan", "noise"]
 Vec3 = tuple[float, float, float]
@@ -97,6 +103,10 @@ class RecordCollector:
         elif isinstance(record, TruthRecord):
             self.truth.t_s.append(record.t_boot_s)
             self.truth.v_ned_mps.append(record.v_ned_mps)
+        elif isinstance(record, MeasurementRecord):
+            s = self.series.setdefault("measurement", Series())
+            s.t_s.append(record.t_boot_s)
+            s.v_ned_mps.append(record.v_ned_mps)
 
     def close(self) -> None:
         return None
@@ -137,20 +147,42 @@ class VelocityFault:
         return "dropout" if self.kind == "nan" else self.kind
 
 
+@dataclass(frozen=True, slots=True)
+class ImuShock:
+    """One IMU sample replaced by a shock: the first ``RAW_IMU`` at or after ``t_s`` reads
+    ``f_body_mps2`` (converted to its mG counts, clipped to int16)."""
+
+    t_s: float
+    f_body_mps2: Vec3
+
+
 _VEL_FIELDS = ("vx", "vy", "vz")
+_MG_PER_MPS2 = 1000.0 / 9.80665
 
 
 class FaultInjector:
-    """Applies :class:`VelocityFault` s to decoded ``LOCAL_POSITION_NED`` messages in place."""
+    """Applies :class:`VelocityFault` s to decoded ``LOCAL_POSITION_NED`` messages and
+    :class:`ImuShock` s to ``RAW_IMU`` messages, in place."""
 
-    def __init__(self, faults: Sequence[VelocityFault], seed: int = 0) -> None:
-        self.faults = tuple(faults)
+    def __init__(self, faults: Sequence[VelocityFault | ImuShock], seed: int = 0) -> None:
+        self.faults = tuple(f for f in faults if isinstance(f, VelocityFault))
+        self.shocks = [f for f in faults if isinstance(f, ImuShock)]
         self._rng = np.random.default_rng(seed)
         self._last_good: list[float] = [math.nan, math.nan, math.nan]
         self._frozen: dict[int, float] = {}
 
     def apply(self, msg: Any) -> None:
-        if msg.get_type() != "LOCAL_POSITION_NED":
+        name = msg.get_type()
+        if name == "RAW_IMU" and self.shocks:
+            t = msg.time_usec * 1e-6
+            for shock in [x for x in self.shocks if t >= x.t_s]:
+                counts = [
+                    max(-32768, min(32767, round(v * _MG_PER_MPS2))) for v in shock.f_body_mps2
+                ]
+                msg.xacc, msg.yacc, msg.zacc = counts
+                self.shocks.remove(shock)
+            return
+        if name != "LOCAL_POSITION_NED":
             return
         t = msg.time_boot_ms * 1e-3
         for f in self.faults:
@@ -217,7 +249,7 @@ class LogResult:
 def replay(
     path: str | Path,
     config: Any = None,
-    faults: Sequence[VelocityFault] = (),
+    faults: Sequence[VelocityFault | ImuShock] = (),
     *,
     seed: int = 0,
     sysid: int | None = None,

@@ -1,0 +1,97 @@
+"""The FDI's pieces on constructed data: the change classifier, the reference fit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from glmav_observer.estimation.fdi import (
+    MIN_PRE_SAMPLES,
+    FdiConfig,
+    ReferenceFit,
+    classify_change,
+)
+
+SIG = (0.03, 0.03, 0.03)
+RATE_HZ = 25.0
+
+
+def _recent(
+    axis_step: int | None = None,
+    step_mps: float = 0.0,
+    ramp_mps2: float = 0.0,
+    accel_db: tuple[float, float, float] | None = None,
+    yaw_rad: float = 0.7,
+    seed: int = 0,
+) -> list[tuple[float, int, float, tuple[float, ...]]]:
+    """1.5 s of residuals of the three axes at 25 Hz, a change at t = 1.0 s.
+
+    B(t) = ∫E dt for a level vehicle at heading ``yaw_rad``: a body-x accelerometer change
+    shows on n and e as ramps of Δb·cos ψ and Δb·sin ψ.
+    """
+    rng = np.random.default_rng(seed)
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    E = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out = []
+    for k in range(int(1.5 * RATE_HZ)):
+        t = k / RATE_HZ
+        B = E * t
+        for j in range(3):
+            r = float(rng.normal(0.0, SIG[j]))
+            if t >= 1.0:
+                if axis_step == j:
+                    r += step_mps + ramp_mps2 * (t - 1.0)
+                if accel_db is not None:
+                    r -= float((B[j] - E[j] * 1.0) @ np.asarray(accel_db))
+            out.append((t, j, r, tuple(B.ravel().tolist())))
+    return out
+
+
+def test_a_velocity_step_is_a_velocity_step() -> None:
+    kind, _, t_c = classify_change(0, _recent(axis_step=0, step_mps=0.5), SIG)
+    assert kind == "velocity"
+    assert abs(t_c - 1.0) <= 1.0 / RATE_HZ + 1e-9  # the first sample of the step
+
+
+def test_an_accelerometer_step_is_blamed_on_the_accelerometer() -> None:
+    kind, db, t_c = classify_change(0, _recent(accel_db=(0.8, 0.0, 0.0)), SIG)
+    assert kind == "accel"
+    # Δb recovered to the noise of 0.5 s of 25 Hz residuals (σ 0.03 m/s): within 0.25 m/s²
+    assert abs(db[0] - 0.8) <= 0.25 and abs(db[1]) <= 0.25, db
+    assert abs(t_c - 1.0) <= 0.2
+
+
+def test_a_single_axis_ramp_is_a_drift_of_the_reference() -> None:
+    kind, _, _ = classify_change(1, _recent(axis_step=1, ramp_mps2=0.6), SIG)
+    assert kind == "ramp"
+
+
+def test_no_history_before_the_change_is_undecided() -> None:
+    rec = [r for r in _recent(axis_step=0, step_mps=0.5) if r[0] >= 1.25]  # armed after the step
+    assert len([r for r in rec if r[1] == 0]) - MIN_PRE_SAMPLES < 3
+    kind, _, _ = classify_change(0, rec, SIG)
+    assert kind == "undecided"
+
+
+def test_reference_uncertainty_grows_into_an_unobserved_heading_error() -> None:
+    """Hover (no horizontal acceleration): the heading error is unobserved, its posterior
+    stays at the prior (0.1 rad); predicting into an acceleration is then uncertain by
+    ~σ_ψ·|∫a_h dt|, which the tests add to their threshold."""
+    cfg = FdiConfig()
+    fit = ReferenceFit(cfg)
+    b_int = (0.0,) * 9
+    for k in range(100):  # 4 s of hover at 25 Hz, three axes
+        t = k / 25.0
+        E = np.eye(3) * t
+        for j in range(3):
+            fit.add(t, j, 0.0, (tuple(E.ravel().tolist()), (0.0, 0.0, 0.0)), 0.03)
+    fit.prune_and_fit(4.0)
+    assert fit.ref is not None
+    sd_yaw = math.sqrt(fit.ref.cov[6, 6])
+    assert sd_yaw == pytest.approx(cfg.prior_yaw_rad, rel=0.01)
+    # 2 m/s of north velocity gained since the anchor: C_e = ∫a_n dt = 2 m/s
+    _, sig_still = fit.ref.predict(1, 0.0, (b_int, (0.0, 0.0, 0.0)))
+    _, sig_accel = fit.ref.predict(1, 0.0, (b_int, (0.0, 2.0, 0.0)))
+    assert sig_accel == pytest.approx(math.hypot(sig_still, 2.0 * cfg.prior_yaw_rad), rel=0.05)
