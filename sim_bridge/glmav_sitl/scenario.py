@@ -85,13 +85,13 @@ class AutopilotProfileConfig:
     broadband_gyro_radps: float = 0.005
     # attitude estimator (complementary filter with GPS-acceleration compensation)
     ahrs_rate_hz: float = 250.0
-    ahrs_tilt_gain: float = 0.3  # 1/s, accelerometer correction of roll and pitch
+    ahrs_tilt_gain: float = 0.1  # 1/s, accelerometer correction of roll and pitch
     ahrs_yaw_gain: float = 0.2  # 1/s, compass correction of yaw
-    ahrs_bias_gain: float = 0.01  # 1/s^2, gyro bias integrator
+    ahrs_bias_gain: float = 0.005  # 1/s^2, gyro bias integrator
     ahrs_accel_comp_tau_s: float = 0.3  # low-pass of the GPS-derived NED acceleration
     ahrs_rate_filter_hz: float = 20.0  # low-pass of ATTITUDE body rates
     gyro_cal_sigma_radps: float = 1e-3  # residual of the boot gyro calibration
-    accel_cal_sigma_mps2: float = 0.05  # residual of the accelerometer calibration
+    accel_cal_sigma_mps2: float = 0.03  # residual of the accelerometer calibration
     compass_bias_sigma_rad: float = 0.01  # constant heading error (declination, soft iron)
     compass_noise_rad: float = 0.02  # white, per AHRS update
     # GPS and the EKF-like velocity/position output

@@ -15,7 +15,7 @@ through the same ``sample`` calls as the ``ideal`` profile (:mod:`.models`).
   rotor lines alias like a real autopilot's RAW_IMU.
 - **Attitude estimator** at ``ahrs_rate_hz`` on the mean of the fast samples since its
   last update: a Mahony complementary filter, ``q <- q exp((w - b + kp e + ky e_psi d) T/2)``,
-  ``e = f_m x f_pred`` (unit vectors, ``f_pred = R^T (a_gps - g e_d)``, ``a_gps`` the
+  ``e = f_m x f_pred / |f_pred|^2`` ( ``f_pred = R^T (a_gps - g e_d)``, ``a_gps`` the
   low-passed derivative of the GPS velocity), ``b <- b - ki e T``; yaw from a compass
   with a constant bias and white noise. The gyro and accelerometer offsets it removes
   are its "boot calibration": the true turn-on biases plus a residual
@@ -286,11 +286,12 @@ class AutopilotSensors:
         qe = self.q_est
         a = self.a_gps_ned_mps2
         fp = rotate_ned_to_body(qe, (a[0], a[1], a[2] - self.g_mps2))
-        nm = math.sqrt(fm[0] * fm[0] + fm[1] * fm[1] + fm[2] * fm[2])
-        npred = math.sqrt(fp[0] * fp[0] + fp[1] * fp[1] + fp[2] * fp[2])
+        # e = f_m x f_pred / |f_pred|^2: linear in f_m, so zero-mean vibration averages out
+        # (normalising by |f_m| too would rectify correlated axes into a tilt bias)
+        n2 = fp[0] * fp[0] + fp[1] * fp[1] + fp[2] * fp[2]
         ex = ey = ez = 0.0
-        if nm > 1e-3 and npred > 1e-3:  # no tilt reference in free fall
-            k = 1.0 / (nm * npred)
+        if n2 > 1e-6:  # no tilt reference in free fall
+            k = 1.0 / n2
             ex = (fm[1] * fp[2] - fm[2] * fp[1]) * k
             ey = (fm[2] * fp[0] - fm[0] * fp[2]) * k
             ez = (fm[0] * fp[1] - fm[1] * fp[0]) * k
