@@ -110,15 +110,24 @@ class AutopilotSensors:
             1.0 / max(rotor_trim_radps[0], 1.0) ** 2,
             1.0 / max(rotor_trim_radps[1], 1.0) ** 2,
         )
-        amp = np.array([*cfg.vibration_accel_mps2, *cfg.vibration_gyro_radps]) * noise
-        cols = []
+        amp = [v * noise for v in (*cfg.vibration_accel_mps2, *cfg.vibration_gyro_radps)]
+        # per rotor: (harmonic, coefficients of sin(h phi) for the 6 axes, of cos(h phi))
+        self._vib: list[list[tuple[float, tuple[float, ...], tuple[float, ...]]]] = []
         for _rotor in range(2):
-            for w in cfg.vibration_harmonic_weights:
-                psi = r_vib.uniform(0.0, 2.0 * math.pi, 6)
-                cols += [w * amp * np.cos(psi), w * amp * np.sin(psi)]
-        self._vib_m = np.array(cols).T  # (6, 2 rotors x harmonics x (sin, cos))
-        self._harm = cfg.vibration_harmonics
-        self._vib_on = bool(np.any(self._vib_m != 0.0))
+            terms = []
+            for h, w in zip(cfg.vibration_harmonics, cfg.vibration_harmonic_weights, strict=True):
+                psi = r_vib.uniform(0.0, 2.0 * math.pi, 6).tolist()
+                terms.append(
+                    (
+                        h,
+                        tuple(w * a * math.cos(p) for a, p in zip(amp, psi, strict=True)),
+                        tuple(w * a * math.sin(p) for a, p in zip(amp, psi, strict=True)),
+                    )
+                )
+            self._vib.append(terms)
+        self._vib_on = any(v != 0.0 for v in amp) and any(
+            w != 0.0 for w in cfg.vibration_harmonic_weights
+        )
         # --- attitude estimator
         self.ahrs_interval_us = max(self.imu_interval_us, round(1e6 / cfg.ahrs_rate_hz))
         self._next_ahrs_us = self.ahrs_interval_us
@@ -200,29 +209,33 @@ class AutopilotSensors:
             (v_ned[2] - vp[2]) / ti - self.g_mps2,
         )
         f_body = rotate_ned_to_body(q, f_ned)
-        gyro, acc = self.imu_model.sample(t_us / 1e6, omega, f_body, self.imu_rate_hz)
+        gyro, acc = self.imu_model.sample_fast(t_us / 1e6, omega, f_body, self.imu_rate_hz)
+        ax, ay, az = acc
+        gx, gy, gz = gyro
         if self._vib_on:
-            sc: list[float] = []
             for r in range(2):
                 w_r = rotor_radps[r]
                 ph = (self._phase[r] + w_r * ti) % (2.0 * math.pi)
                 self._phase[r] = ph
                 s2 = w_r * w_r * self._trim2[r]
-                for h in self._harm:
-                    sc += [math.sin(h * ph) * s2, math.cos(h * ph) * s2]
-            vib = (self._vib_m @ sc).tolist()
-        else:
-            vib = [0.0] * 6
-        self.accel_mps2 = (acc[0] + vib[0], acc[1] + vib[1], acc[2] + vib[2])
-        self.gyro_radps = (gyro[0] + vib[3], gyro[1] + vib[4], gyro[2] + vib[5])
+                for h, cs, cc in self._vib[r]:
+                    sn = math.sin(h * ph) * s2
+                    cn = math.cos(h * ph) * s2
+                    ax += cs[0] * sn + cc[0] * cn
+                    ay += cs[1] * sn + cc[1] * cn
+                    az += cs[2] * sn + cc[2] * cn
+                    gx += cs[3] * sn + cc[3] * cn
+                    gy += cs[4] * sn + cc[4] * cn
+                    gz += cs[5] * sn + cc[5] * cn
+        self.accel_mps2 = (ax, ay, az)
+        self.gyro_radps = (gx, gy, gz)
         s = self._sum
-        a, g = self.accel_mps2, self.gyro_radps
-        s[0] += a[0]
-        s[1] += a[1]
-        s[2] += a[2]
-        s[3] += g[0]
-        s[4] += g[1]
-        s[5] += g[2]
+        s[0] += ax
+        s[1] += ay
+        s[2] += az
+        s[3] += gx
+        s[4] += gy
+        s[5] += gz
         self._n_sum += 1
 
     def _gps_fix(self, t_us: int) -> None:
