@@ -72,15 +72,16 @@ def run(quick: bool = False) -> dict[str, Any]:
                 Simulator(sc, seed=1, dt_s=dt).run_for(sim_s)
 
             t_phys = time_per_call_s(physics, number=1, repeats=repeats)
+            rtf_row = sim_s / t_full["median_s"]
             if prof == "ideal":
-                rtf[dt] = sim_s / t_full["median_s"]
+                rtf[dt] = rtf_row
             n_steps = sim_s / dt
             rows.append(
                 {
                     "sensor_profile": prof,
                     "dt_s": dt,
                     "sim_s": sim_s,
-                    "real_time_factor": rtf[dt],
+                    "real_time_factor": rtf_row,
                     "physics_only_rtf": sim_s / t_phys["median_s"],
                     "us_per_step_total": t_full["median_s"] / n_steps * 1e6,
                     "us_per_step_physics": t_phys["median_s"] / n_steps * 1e6,
