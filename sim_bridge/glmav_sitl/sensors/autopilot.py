@@ -81,6 +81,7 @@ class AutopilotSensors:
         self.cfg = cfg
         self.g_mps2 = g_mps2
         noise = sensors.noise_scale if sensors.noise else 0.0
+        bias = sensors.bias_scale if sensors.bias else 0.0  # calibration residuals, compass
         # --- fast IMU: the [imu] errors at the fast rate, broadband vibration folded into
         # the white noise (density^2 + broadband^2 / rate, then the noise scale)
         self.imu_interval_us = max(dt_us, round(1e6 / cfg.imu_rate_hz))
@@ -103,8 +104,9 @@ class AutopilotSensors:
         self._v_prev: Vec3 = v0_ned_mps
         self.gyro_radps: Vec3 = (0.0, 0.0, 0.0)  # the latest fast sample
         self.accel_mps2: Vec3 = rotate_ned_to_body(q0, (0.0, 0.0, -g_mps2))
-        # vibration: (accel x3, gyro x3) = M (sin h_j phi_r, cos h_j phi_r) over rotors r and
-        # harmonics j, amplitude ~ (Omega_r / Omega_trim)^2, seeded phase per axis
+        # vibration of (accel x, y, z, gyro x, y, z): a sum over rotors r and harmonics h of
+        # (Omega_r / Omega_trim)^2 (c_sin sin(h phi_r) + c_cos cos(h phi_r)), i.e. an
+        # amplitude and a seeded phase per axis
         self._phase = [0.0, 0.0]
         self._trim2 = (
             1.0 / max(rotor_trim_radps[0], 1.0) ** 2,
@@ -138,14 +140,14 @@ class AutopilotSensors:
         cs = (cfg.gyro_cal_sigma_radps, cfg.accel_cal_sigma_mps2)
         cal = r_cal.standard_normal(6)
         gb, ab = self.imu_model.gyro_bias_radps, self.imu_model.accel_bias_mps2
-        self.gyro_bias_est_radps = [gb[i] + cs[0] * noise * float(cal[i]) for i in range(3)]
+        self.gyro_bias_est_radps = [gb[i] + cs[0] * bias * float(cal[i]) for i in range(3)]
         #: the accelerometer offset the estimator removes (fixed: its calibration)
         self.accel_cal_mps2: Vec3 = (
-            ab[0] + cs[1] * noise * float(cal[3]),
-            ab[1] + cs[1] * noise * float(cal[4]),
-            ab[2] + cs[1] * noise * float(cal[5]),
+            ab[0] + cs[1] * bias * float(cal[3]),
+            ab[1] + cs[1] * bias * float(cal[4]),
+            ab[2] + cs[1] * bias * float(cal[5]),
         )
-        self.compass_bias_rad = cfg.compass_bias_sigma_rad * noise * float(r_cal.standard_normal())
+        self.compass_bias_rad = cfg.compass_bias_sigma_rad * bias * float(r_cal.standard_normal())
         self._compass_sigma = cfg.compass_noise_rad * noise
         self._r_cal = r_cal
         self.rates_est_radps: Vec3 = (0.0, 0.0, 0.0)
