@@ -297,8 +297,11 @@ def _autopilot(p: Path, t: dict[str, Any]) -> AutopilotProfileConfig:
         if k == "rates_hz":
             kw[k] = _rates(p, get_table(p, t, k, prefix=pre), pre + "rates_hz.")
         elif k in vec_keys:
-            n = 3 if k.endswith(("mps2", "radps")) else len(v) if isinstance(v, list) else 0
-            kw[k] = get_vec(p, t, k, max(n, 1), prefix=pre, lo=0.0, hi=1e3)
+            three = k.endswith(("mps2", "radps"))  # per axis; the harmonics: any number >= 1
+            if not three and v == []:
+                raise ConfigError(p, pre + k, "needs at least one entry")
+            n = 3 if three or not isinstance(v, list) else len(v)
+            kw[k] = get_vec(p, t, k, n, prefix=pre, lo=0.0, hi=1e3)
         else:
             kw[k] = get_float(p, t, k, prefix=pre, lo=0.0, hi=1e5, lo_open=k in positive)
     cfg = replace(d, **kw)

@@ -208,6 +208,7 @@ def test_vibration_aliases_into_raw_imu(tmp_path: Path) -> None:
 
 def test_autopilot_same_seed_same_bytes(tmp_path: Path) -> None:
     sc = load_scenario("autopilot-cruise")
+    assert sc.sensor_profile == "autopilot"  # the scenario file's top-level key
     paths = [tmp_path / f"{i}.tlog" for i in range(3)]
     for p, seed in zip(paths, (4, 4, 5), strict=True):
         run(sc, [], duration_s=2.0, speed="max", seed=seed, tlog_path=p)
@@ -249,6 +250,7 @@ def test_bad_profile_settings_name_file_key_and_reason(tmp_path: Path) -> None:
         ("[autopilot]\ngps_rate = 5.0\n", "autopilot.gps_rate"),
         ("[autopilot]\nvelocity_lag_s = 0.01\n", "autopilot.velocity_lag_s"),
         ("[autopilot]\nvibration_harmonics = [1.0]\n", "autopilot.vibration_harmonic_weights"),
+        ("[autopilot]\nvibration_harmonics = []\n", "autopilot.vibration_harmonics"),
         ("[autopilot.rates_hz]\nattitude = 'fast'\n", "autopilot.rates_hz.attitude"),
     ):
         bad.write_text(text, encoding="utf-8")
