@@ -20,7 +20,11 @@ the faulty axis's error at +1, +5, +10 s after the fault starts.
 
 ``python -m benchmarks.accuracy [--quick]`` or ``python -m benchmarks --only accuracy``:
 prints the tables, writes ``benchmarks/results/accuracy.json`` and regenerates
-``docs/benchmarks/accuracy.md``.
+``docs/benchmarks/accuracy.md``. ``--sensor-profile autopilot`` flies every case with the
+simulator's ``autopilot`` sensors (vibrating 50 Hz RAW_IMU, estimated attitude, 10 Hz
+filtered GPS velocity 150 ms late; docs/model.md) and writes ``accuracy-autopilot.json`` /
+``accuracy-autopilot.md`` instead. ``--case LABEL`` (repeatable) runs only those cases and
+prints the tables without writing anything.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ from benchmarks.baselines import (
     RawMeasurement,
     earth_accel_mps2,
 )
-from benchmarks.common import format_goals, format_table, goal, main_for, write_result
+from benchmarks.common import format_goals, format_table, goal, write_result
 from benchmarks.paper import tlog_samples
 from glmav_observer.config import load_config
 from glmav_observer.estimation.vehicle import VehicleEstimator
@@ -114,11 +118,15 @@ def cases(quick: bool) -> list[Case]:
     return out
 
 
-def build_scenario(case: Case) -> Any:
-    """The shipped scenario with the fault moved to ``case.axis``."""
+SENSOR_PROFILES = ("ideal", "autopilot")  # glmav_sitl.scenario.SENSOR_PROFILES
+
+
+def build_scenario(case: Case, sensor_profile: str = "ideal") -> Any:
+    """The shipped scenario with the fault moved to ``case.axis``, flown with the
+    simulator's ``sensor_profile`` sensors."""
     from glmav_sitl.scenario import load_scenario
 
-    sc = load_scenario(case.base)
+    sc = dataclasses.replace(load_scenario(case.base), sensor_profile=sensor_profile)
     if case.fault_kind:
         (f,) = sc.faults
         if case.fault_kind == "accel_bias":
@@ -278,11 +286,11 @@ def convergence_time(tr: Trace, name: str) -> float:
     return float(tr.t_s[below[0]] - tr.t_start_s) if below.size else math.inf
 
 
-def evaluate(case: Case, seed: int) -> dict[str, Any]:
+def evaluate(case: Case, seed: int, sensor_profile: str = "ideal") -> dict[str, Any]:
     """Fly ``case`` with ``seed``; every metric of the run (JSON-able)."""
     from glmav_sitl.runner import run
 
-    sc = build_scenario(case)
+    sc = build_scenario(case, sensor_profile)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         tlog = Path(tmp) / "run.tlog"
@@ -349,7 +357,7 @@ def evaluate(case: Case, seed: int) -> dict[str, Any]:
 # ---------------------------------------------------------------------------- suite
 
 
-def _task(args: tuple[Case, int]) -> dict[str, Any]:
+def _task(args: tuple[Case, int, str]) -> dict[str, Any]:
     """One run; a failure is returned as a row with its traceback (reported, not hidden)."""
     try:
         return evaluate(*args)
@@ -459,12 +467,30 @@ def summarise(results: list[dict[str, Any]], case_list: list[Case]) -> dict[str,
     }
 
 
-def run(quick: bool = False) -> dict[str, Any]:
+def _names(sensor_profile: str) -> tuple[str, Path]:
+    """The result name and the doc of a profile (``ideal`` keeps the historical ones)."""
+    if sensor_profile == "ideal":
+        return "accuracy", DOC
+    return f"accuracy-{sensor_profile}", DOC.with_name(f"accuracy-{sensor_profile}.md")
+
+
+def run(
+    quick: bool = False, sensor_profile: str = "ideal", only: Sequence[str] = ()
+) -> dict[str, Any]:
     """The suite. ``GLMAV_ACCURACY_BUDGET_S`` (env) bounds the wall time: runs not started
-    by then are dropped (seed 0 of every case goes first) and the doc says so."""
+    by then are dropped (seed 0 of every case goes first) and the doc says so.
+    ``only``: case labels to run (the doc is then not rewritten)."""
+    if sensor_profile not in SENSOR_PROFILES:
+        raise ValueError(f"sensor profile {sensor_profile!r} is not one of {SENSOR_PROFILES}")
     seeds = [0] if quick else [0, 1, 2]
     case_list = cases(quick)
-    tasks = [(c, s) for s in seeds for c in case_list]
+    if only:
+        unknown = set(only) - {c.label for c in case_list}
+        if unknown:
+            known = ", ".join(c.label for c in case_list)
+            raise ValueError(f"unknown case(s) {', '.join(sorted(unknown))} (known: {known})")
+        case_list = [c for c in case_list if c.label in only]
+    tasks = [(c, s, sensor_profile) for s in seeds for c in case_list]
     env_budget = os.environ.get("GLMAV_ACCURACY_BUDGET_S")
     budget = float(env_budget) if env_budget else None  # as_completed: None = no limit
     t0 = time.perf_counter()
@@ -482,21 +508,40 @@ def run(quick: bool = False) -> dict[str, Any]:
         if fut.done() and not fut.cancelled() and fut.result() not in results:
             results.append(fut.result())
     skipped = [
-        f"{c.label} seed {s}" for (c, s), fut in zip(tasks, futures, strict=True) if fut.cancelled()
+        f"{c.label} seed {s}"
+        for (c, s, _), fut in zip(tasks, futures, strict=True)
+        if fut.cancelled()
     ]
     wall = time.perf_counter() - t0
     failed = [r for r in results if "error" in r]
     results = [r for r in results if "error" not in r]
-    result = finish(results, quick=quick, seeds=seeds, wall_s=wall, workers=workers)
+    result = finish(
+        results,
+        quick=quick,
+        seeds=seeds,
+        wall_s=wall,
+        workers=workers,
+        sensor_profile=sensor_profile,
+        only=only,
+    )
     result["failed_runs"] = failed
     result["skipped_runs"] = skipped
-    DOC.parent.mkdir(parents=True, exist_ok=True)
-    DOC.write_text(to_markdown(result) + "\n", encoding="utf-8")
+    if not only:
+        doc = _names(sensor_profile)[1]
+        doc.parent.mkdir(parents=True, exist_ok=True)
+        doc.write_text(to_markdown(result) + "\n", encoding="utf-8")
     return result
 
 
 def finish(
-    results: list[dict[str, Any]], *, quick: bool, seeds: list[int], wall_s: float, workers: int
+    results: list[dict[str, Any]],
+    *,
+    quick: bool,
+    seeds: list[int],
+    wall_s: float,
+    workers: int,
+    sensor_profile: str = "ideal",
+    only: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Summary, goals and the result dict from the per-run results."""
     case_list = [c for c in cases(quick) if any(r["case"] == c.label for r in results)]
@@ -524,7 +569,9 @@ def finish(
                           float(np.median(b10) / max(float(np.median(k10)), 1e-12)), 1.0,
                           higher_is_better=False))  # fmt: skip
     return {
-        "name": "accuracy",
+        "name": _names(sensor_profile)[0],
+        "sensor_profile": sensor_profile,
+        "only": list(only),
         "quick": quick,
         "seeds": seeds,
         "rows": summary["nominal"] + summary["faults"],
@@ -543,19 +590,26 @@ def rebuild_docs(path: Path | None = None) -> None:
     import json
 
     old = json.loads((path or RESULTS).read_text(encoding="utf-8"))
+    prof = old.get("sensor_profile", "ideal")
     res = finish(old["runs"], quick=old["quick"], seeds=old["seeds"], wall_s=old["wall_s"],
-                 workers=old["workers"])  # fmt: skip
+                 workers=old["workers"], sensor_profile=prof)  # fmt: skip
     res["failed_runs"] = old.get("failed_runs", [])
     res["skipped_runs"] = old.get("skipped_runs", [])
     write_result(res)
-    DOC.write_text(to_markdown(res) + "\n", encoding="utf-8")
+    _names(prof)[1].write_text(to_markdown(res) + "\n", encoding="utf-8")
 
 
 def to_markdown(result: dict[str, Any]) -> str:
     s = result["summary"]
-    cmd = "python -m benchmarks.accuracy" + (" --quick" if result["quick"] else "")
+    prof = result.get("sensor_profile", "ideal")
+    cmd = (
+        "python -m benchmarks.accuracy"
+        + (" --quick" if result["quick"] else "")
+        + (f" --sensor-profile {prof}" if prof != "ideal" else "")
+        + "".join(f" --case {c}" for c in result.get("only", []))
+    )
     lines = [
-        "# Accuracy against baselines",
+        "# Accuracy against baselines" + (f" ({prof} sensor profile)" if prof != "ideal" else ""),
         "",
         f"Produced by `{cmd}` (also `python -m benchmarks --only accuracy`); "
         f"seeds {result['seeds']}, {len(result['runs'])} runs, {result['wall_s']:.0f} s wall "
@@ -645,8 +699,32 @@ def to_markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def main(argv: Sequence[str] | None = None) -> int:
+    """``--quick``, ``--sensor-profile ideal|autopilot``, ``--case LABEL`` (repeatable),
+    ``--docs-only`` (regenerate the doc of ``--sensor-profile`` from its JSON)."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--quick", action="store_true", help="fewer cases and seeds (smoke run)")
+    ap.add_argument("--sensor-profile", choices=SENSOR_PROFILES, default="ideal")
+    ap.add_argument("--case", action="append", default=[], metavar="LABEL",
+                    help="run only this case (repeatable); nothing is written")  # fmt: skip
+    ap.add_argument("--docs-only", action="store_true", help="rebuild the doc from the JSON")
+    args = ap.parse_args(argv)
+    name, _ = _names(args.sensor_profile)
+    if args.docs_only:
+        rebuild_docs(RESULTS.with_name(f"{name}.json"))
+        return 0
+    try:
+        result = run(quick=args.quick, sensor_profile=args.sensor_profile, only=args.case)
+    except ValueError as e:
+        print(f"accuracy: {e}", file=sys.stderr)
+        return 2
+    print(to_markdown(result))
+    if not args.case:
+        print(f"\nwrote {write_result(result)}", file=sys.stderr)
+    return 0
+
+
 if __name__ == "__main__":
-    if sys.argv[1:] == ["--docs-only"]:
-        rebuild_docs()
-        sys.exit(0)
-    sys.exit(main_for(sys.modules[__name__]))
+    sys.exit(main())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import signal
 import sys
@@ -14,7 +15,7 @@ from glmav_sitl.config import ConfigError
 from glmav_sitl.mavlink.links import LinkError
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.runner import parse_speed, run
-from glmav_sitl.scenario import load_scenario, load_sitl_config, scenario_names
+from glmav_sitl.scenario import SENSOR_PROFILES, load_scenario, load_sitl_config, scenario_names
 
 log = logging.getLogger("glmav_sitl")
 
@@ -39,6 +40,13 @@ def _build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="CONN",
         help="connection string, repeatable: udpout:HOST:PORT, udpin:HOST:PORT, tcp:, tcpin:",
+    )
+    r.add_argument(
+        "--sensor-profile",
+        choices=SENSOR_PROFILES,
+        default=None,
+        help="ideal (truth + noise) or autopilot (vibrating 50 Hz IMU, estimated attitude, "
+        "filtered lagging GPS); default: the scenario's sensor_profile",
     )
     r.add_argument("--tlog", default=None, help="write the MAVLink stream to this .tlog")
     r.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
@@ -78,6 +86,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if len(key) != 32:
                 raise ValueError("--signing-key must be 32 bytes (64 hex digits)")
         scenario = load_scenario(args.scenario)
+        if args.sensor_profile is not None:
+            scenario = dataclasses.replace(scenario, sensor_profile=args.sensor_profile)
         sitl = load_sitl_config(args.config)
         params = load_vehicle_params(args.vehicle)
     except ConfigError as e:
@@ -94,7 +104,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     log.info(
-        "flying %s (%s) -> %s", scenario.name, scenario.source, ", ".join(args.link) or "no link"
+        "flying %s (%s), %s sensors -> %s",
+        scenario.name,
+        scenario.source,
+        scenario.sensor_profile,
+        ", ".join(args.link) or "no link",
     )
     try:
         summary = run(

@@ -1,13 +1,15 @@
 """Simulator settings (``sitl.toml``) and scenarios (``scenarios/NAME.toml``), validated.
 
 A scenario names its initial state, how the vehicle is flown (closed loop with
-time-tagged setpoints, or open-loop actuator inputs), the wind, sensor noise
+time-tagged setpoints, or open-loop actuator inputs), the wind, the sensor profile
+(``ideal`` or ``autopilot``, see :mod:`glmav_sitl.sensors.autopilot`), sensor noise
 switches, stream rates and scheduled sensor faults. See ``configs/scenarios/*.toml``
 for commented examples; every key is checked (unknown keys are errors).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -61,6 +63,46 @@ class SensorConfig:
     bias_scale: float = 1.0
 
 
+SENSOR_PROFILES = ("ideal", "autopilot")
+
+
+@dataclass(frozen=True)
+class AutopilotProfileConfig:
+    """The ``autopilot`` sensor profile (``[autopilot]`` in sitl.toml); see docs/model.md.
+
+    A fast IMU with rotor vibration, an attitude estimator (complementary filter) on it,
+    and an EKF-like filtered GPS velocity with a lag. The IMU noise densities, biases and
+    random walks are the ``[imu]`` ones.
+    """
+
+    imu_rate_hz: float = 1000.0  # internal IMU sampling (capped by the physics step rate)
+    # vibration: sinusoids at harmonics of each rotor's speed, amplitude ~ (Omega/trim)^2
+    vibration_harmonics: tuple[float, ...] = (1.0, 2.0)  # multiples of the rotor speed
+    vibration_harmonic_weights: tuple[float, ...] = (1.0, 0.5)
+    vibration_accel_mps2: tuple[float, float, float] = (1.5, 1.5, 2.5)  # per rotor, at trim
+    vibration_gyro_radps: tuple[float, float, float] = (0.03, 0.03, 0.01)  # per rotor, at trim
+    broadband_accel_mps2: float = 0.3  # extra white vibration per fast sample (1 sigma)
+    broadband_gyro_radps: float = 0.005
+    # attitude estimator (complementary filter with GPS-acceleration compensation)
+    ahrs_rate_hz: float = 250.0
+    ahrs_tilt_gain: float = 0.1  # 1/s, accelerometer correction of roll and pitch
+    ahrs_yaw_gain: float = 0.2  # 1/s, compass correction of yaw
+    ahrs_bias_gain: float = 0.005  # 1/s^2, gyro bias integrator
+    ahrs_accel_comp_tau_s: float = 0.3  # low-pass of the GPS-derived NED acceleration
+    ahrs_rate_filter_hz: float = 20.0  # low-pass of ATTITUDE body rates
+    gyro_cal_sigma_radps: float = 1e-3  # residual of the boot gyro calibration
+    accel_cal_sigma_mps2: float = 0.03  # residual of the accelerometer calibration
+    compass_bias_sigma_rad: float = 0.01  # constant heading error (declination, soft iron)
+    compass_noise_rad: float = 0.02  # white, per AHRS update
+    # GPS and the EKF-like velocity/position output
+    gps_rate_hz: float = 10.0
+    gps_velocity_sigma_mps: float = 0.08
+    gps_position_sigma_m: float = 0.3
+    velocity_filter_tau_s: float = 0.1  # first-order filter on each GPS fix
+    velocity_lag_s: float = 0.15  # total lag of LOCAL_POSITION_NED against truth
+    rates_hz: dict[str, float] = field(default_factory=dict)
+
+
 @dataclass(frozen=True)
 class ControllerGains:
     pos_p: float = 1.0  # 1/s, position error -> velocity command
@@ -89,6 +131,7 @@ class SitlConfig:
     rates_hz: dict[str, float] = field(default_factory=dict)
     sensors: SensorConfig = field(default_factory=SensorConfig)
     gains: ControllerGains = field(default_factory=ControllerGains)
+    autopilot: AutopilotProfileConfig = field(default_factory=AutopilotProfileConfig)
 
 
 @dataclass(frozen=True)
@@ -139,6 +182,7 @@ class Scenario:
     rates_hz: dict[str, float]
     faults: tuple[Fault, ...]
     source: str = ""
+    sensor_profile: str = "ideal"  # one of SENSOR_PROFILES
 
 
 def _rates(path: str | Path, table: dict[str, Any], prefix: str) -> dict[str, float]:
@@ -165,6 +209,7 @@ def load_sitl_config(path: str | Path | None = None) -> SitlConfig:
             "attitude",
             "local_position",
             "controller",
+            "autopilot",
         },
     )
     home = get_table(p, raw, "home")
@@ -231,7 +276,61 @@ def load_sitl_config(path: str | Path | None = None) -> SitlConfig:
             ),
         ),
         gains=gains,
+        autopilot=_autopilot(p, get_table(p, raw, "autopilot")),
     )
+
+
+def _autopilot(p: Path, t: dict[str, Any]) -> AutopilotProfileConfig:
+    """The ``[autopilot]`` table: every key optional (defaults above), bounds checked."""
+    pre = "autopilot."
+    d = AutopilotProfileConfig()
+    vec_keys = {
+        "vibration_harmonics",
+        "vibration_harmonic_weights",
+        "vibration_accel_mps2",
+        "vibration_gyro_radps",
+    }
+    check_keys(p, t, set(AutopilotProfileConfig.__dataclass_fields__), prefix=pre)
+    kw: dict[str, Any] = {}
+    positive = {"imu_rate_hz", "ahrs_rate_hz", "gps_rate_hz", "ahrs_rate_filter_hz"}
+    for k, v in t.items():
+        if k == "rates_hz":
+            kw[k] = _rates(p, get_table(p, t, k, prefix=pre), pre + "rates_hz.")
+        elif k in vec_keys:
+            three = k.endswith(("mps2", "radps"))  # per axis; the harmonics: any number >= 1
+            if not three and v == []:
+                raise ConfigError(p, pre + k, "needs at least one entry")
+            n = 3 if three or not isinstance(v, list) else len(v)
+            kw[k] = get_vec(p, t, k, n, prefix=pre, lo=0.0, hi=1e3)
+        else:
+            kw[k] = get_float(p, t, k, prefix=pre, lo=0.0, hi=1e5, lo_open=k in positive)
+    cfg = replace(d, **kw)
+    if len(cfg.vibration_harmonics) != len(cfg.vibration_harmonic_weights):
+        raise ConfigError(
+            p, pre + "vibration_harmonic_weights", "needs one weight per vibration_harmonics entry"
+        )
+    filt = filter_delay_s(cfg)
+    if cfg.velocity_lag_s < filt:
+        raise ConfigError(
+            p,
+            pre + "velocity_lag_s",
+            f"{cfg.velocity_lag_s} s is below the filter's own delay {filt:.4f} s "
+            "(velocity_filter_tau_s at gps_rate_hz)",
+        )
+    return cfg
+
+
+def filter_delay_s(cfg: AutopilotProfileConfig) -> float:
+    """Low-frequency delay of the first-order GPS filter sampled at ``gps_rate_hz``.
+
+    ``y_k = y_{k-1} + a (x_k - y_{k-1})``, ``a = 1 - exp(-T/tau)``, weights ``a (1-a)^j``
+    on ``x_{k-j}``: mean delay ``(1-a)/a T`` (``tau`` when ``T << tau``).
+    """
+    period_s = 1.0 / cfg.gps_rate_hz
+    if cfg.velocity_filter_tau_s <= 0.0:
+        return 0.0
+    a = 1.0 - math.exp(-period_s / cfg.velocity_filter_tau_s)
+    return (1.0 - a) / a * period_s
 
 
 def _pair(path: str | Path, t: dict[str, Any], key: str, prefix: str) -> tuple[float, float] | None:
@@ -272,6 +371,7 @@ def scenario_from_dict(raw: dict[str, Any], path: str | Path) -> Scenario:
             "sensors",
             "rates_hz",
             "faults",
+            "sensor_profile",
         },
     )
     init = get_table(p, raw, "initial")
@@ -458,6 +558,7 @@ def scenario_from_dict(raw: dict[str, Any], path: str | Path) -> Scenario:
         rates_hz=_rates(p, get_table(p, raw, "rates_hz"), "rates_hz."),
         faults=tuple(faults),
         source=str(p),
+        sensor_profile=get_str(p, raw, "sensor_profile", default="ideal", choices=SENSOR_PROFILES),
     )
 
 
@@ -494,7 +595,8 @@ def effective_sensor_config(sitl: SitlConfig, sc: Scenario) -> SensorConfig:
 
 
 def effective_rates(sitl: SitlConfig, sc: Scenario) -> dict[str, float]:
-    """Stream rates in Hz: built-in defaults, then sitl.toml, then the scenario."""
+    """Stream rates in Hz: built-in defaults, then sitl.toml, then (``autopilot`` profile)
+    ``[autopilot.rates_hz]``, then the scenario."""
     rates = {
         "heartbeat": 1.0,
         "raw_imu": 250.0,
@@ -505,5 +607,7 @@ def effective_rates(sitl: SitlConfig, sc: Scenario) -> dict[str, float]:
         "sim_state": 50.0,
     }
     rates.update(sitl.rates_hz)
+    if sc.sensor_profile == "autopilot":
+        rates.update(sitl.autopilot.rates_hz)
     rates.update(sc.rates_hz)
     return rates

@@ -1,7 +1,11 @@
 """The simulator core: state, fixed-step RK4, controller, wind and sensors (no I/O).
 
 ``Simulator.step()`` advances one physics step ``dt_s``; the controller and the wind
-update at the control rate (zero-order hold between ticks). Time is kept as an
+update at the control rate (zero-order hold between ticks). The scenario's
+``sensor_profile`` picks the sensors: ``ideal`` (truth plus noise and bias, sampled when
+a message is sent, :mod:`glmav_sitl.sensors.models`) or ``autopilot`` (a fast IMU with
+vibration, an attitude estimator and a filtered, lagging GPS run inside the step,
+:mod:`glmav_sitl.sensors.autopilot`). Time is kept as an
 integer number of microseconds (``t_us``) so that stream schedules never drift.
 """
 
@@ -29,6 +33,12 @@ from glmav_sitl.scenario import (
     effective_sensor_config,
     load_scenario,
     load_sitl_config,
+)
+from glmav_sitl.sensors.autopilot import (
+    AutopilotAttitude,
+    AutopilotImu,
+    AutopilotPosition,
+    AutopilotSensors,
 )
 from glmav_sitl.sensors.models import AttitudeSensor, ImuModel, PositionVelocitySensor
 from glmav_sitl.wind import WindModel
@@ -94,9 +104,37 @@ class Simulator:
         ss = np.random.SeedSequence(seed)
         r_imu, r_att, r_pos, r_fault, r_wind = (np.random.default_rng(s) for s in ss.spawn(5))
         self.sensor_config: SensorConfig = effective_sensor_config(self.sitl, sc)
-        self.imu = ImuModel(self.sensor_config, r_imu, sc.faults)
-        self.attitude_sensor = AttitudeSensor(self.sensor_config, r_att)
-        self.position_sensor = PositionVelocitySensor(self.sensor_config, r_pos, r_fault, sc.faults)
+        self.sensor_profile = sc.sensor_profile
+        self.autopilot: AutopilotSensors | None = None
+        self.imu: ImuModel | AutopilotImu
+        self.attitude_sensor: AttitudeSensor | AutopilotAttitude
+        self.position_sensor: PositionVelocitySensor | AutopilotPosition
+        if sc.sensor_profile == "autopilot":
+            # own streams, spawned after the five above (which stay as they are)
+            r_ap = tuple(np.random.default_rng(s) for s in ss.spawn(4))
+            q0 = (self.x[6], self.x[7], self.x[8], self.x[9])
+            ap = AutopilotSensors(
+                self.sitl.autopilot,
+                self.sensor_config,
+                (r_imu, r_ap[0], r_ap[1], r_ap[2], r_fault),
+                sc.faults,
+                g_mps2=self.params.g,
+                dt_us=self.dt_us,
+                q0=q0,
+                p0_ned_m=(self.x[0], self.x[1], self.x[2]),
+                v0_ned_mps=rotate_body_to_ned(q0, (self.x[3], self.x[4], self.x[5])),
+                rotor_trim_radps=trim,
+            )
+            self.autopilot = ap
+            self.imu = AutopilotImu(ap)
+            self.attitude_sensor = AutopilotAttitude(ap)
+            self.position_sensor = AutopilotPosition(ap)
+        else:
+            self.imu = ImuModel(self.sensor_config, r_imu, sc.faults)
+            self.attitude_sensor = AttitudeSensor(self.sensor_config, r_att)
+            self.position_sensor = PositionVelocitySensor(
+                self.sensor_config, r_pos, r_fault, sc.faults
+            )
         self.wind = WindModel(sc.wind, r_wind)
         self.wind_ned: list[float] = list(self.wind.update(0.0))
         self.controller: Controller | None = None
@@ -127,6 +165,8 @@ class Simulator:
             self.wind_ned = list(self.wind.update(t))
             if self.controller is not None:
                 self.u = self.controller.update(t, self.x)
+        if self.autopilot is not None:
+            self.autopilot.update(self.t_us, self.x)
         if not math.isfinite(self.x[2]):
             raise FloatingPointError(f"state diverged at t = {self.t_s:.4f} s")
 

@@ -25,6 +25,7 @@ from glmav_sitl.scenario import Fault, SensorConfig
 
 Vec3 = tuple[float, float, float]
 _AXIS = {"n": 0, "e": 1, "d": 2}
+_BLOCK = 1024  # rows of normals drawn at once by ImuModel.sample_fast
 
 
 class ImuModel:
@@ -46,6 +47,8 @@ class ImuModel:
         self.accel_bias_mps2 = [float(v) * c.accel_bias_sigma * bscale for v in turn_on[3:]]
         self._accel_faults = tuple(f for f in faults if f.sensor == "accel")
         self._t_last_s = 0.0
+        self._blk: list[list[float]] = []  # sample_fast's pre-drawn normals
+        self._blk_i = 0
 
     def accel_fault_bias(self, t_s: float) -> Vec3:
         bx = by = bz = 0.0
@@ -89,6 +92,48 @@ class ImuModel:
             f_body_mps2[0] + ab[0] + na[0] + fb[0],
             f_body_mps2[1] + ab[1] + na[1] + fb[1],
             f_body_mps2[2] + ab[2] + na[2] + fb[2],
+        )
+        return gyro, accel
+
+    def sample_fast(
+        self, t_s: float, omega_body_radps: Vec3, f_body_mps2: Vec3, rate_hz: float
+    ) -> tuple[Vec3, Vec3]:
+        """:meth:`sample` for callers at kHz rates (the autopilot profile's fast IMU): the
+        same model and statistics, the normal draws taken from blocks of
+        ``_BLOCK`` x 12 (one numpy call per block instead of two per sample), so the
+        draw order, and the numbers, differ from :meth:`sample`'s."""
+        i = self._blk_i
+        if i >= len(self._blk):
+            self._blk = self._rng.standard_normal((_BLOCK, 12)).tolist()
+            i = 0
+        self._blk_i = i + 1
+        n = self._blk[i]
+        dt = t_s - self._t_last_s
+        gb = self.gyro_bias_radps
+        ab = self.accel_bias_mps2
+        if dt > 0.0 and (self._grw > 0.0 or self._arw > 0.0):
+            s = math.sqrt(dt)
+            g, a = self._grw * s, self._arw * s
+            gb[0] += g * n[6]
+            gb[1] += g * n[7]
+            gb[2] += g * n[8]
+            ab[0] += a * n[9]
+            ab[1] += a * n[10]
+            ab[2] += a * n[11]
+        self._t_last_s = max(self._t_last_s, t_s)
+        sr = math.sqrt(rate_hz) if rate_hz > 0.0 else 0.0
+        sg = self._gd * sr
+        sa = self._ad * sr
+        fb = self.accel_fault_bias(t_s) if self._accel_faults else (0.0, 0.0, 0.0)
+        gyro = (
+            omega_body_radps[0] + gb[0] + sg * n[0],
+            omega_body_radps[1] + gb[1] + sg * n[1],
+            omega_body_radps[2] + gb[2] + sg * n[2],
+        )
+        accel = (
+            f_body_mps2[0] + ab[0] + sa * n[3] + fb[0],
+            f_body_mps2[1] + ab[1] + sa * n[4] + fb[1],
+            f_body_mps2[2] + ab[2] + sa * n[5] + fb[2],
         )
         return gyro, accel
 
