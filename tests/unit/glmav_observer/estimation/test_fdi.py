@@ -19,6 +19,7 @@ RATE_HZ = 25.0
 
 
 def _recent(
+    *,
     axis_step: int | None = None,
     step_mps: float = 0.0,
     ramp_mps2: float = 0.0,

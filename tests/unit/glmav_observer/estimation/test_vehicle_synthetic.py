@@ -251,9 +251,9 @@ def _with_imu_shock(samples: Iterator[Sample], t_s: float, f_mps2: float) -> Ite
     for s in samples:
         if not done and isinstance(s, ImuSample) and s.t_boot_s >= t_s:
             done = True
-            s = ImuSample(
-                s.sysid, s.t_boot_s, (f_mps2, -f_mps2, f_mps2), s.omega_body_radps, s.source
-            )
+            f = (f_mps2, -f_mps2, f_mps2)
+            yield ImuSample(s.sysid, s.t_boot_s, f, s.omega_body_radps, s.source)
+            continue
         yield s
 
 
@@ -284,7 +284,7 @@ def test_a_missing_stream_is_not_an_axis_fault() -> None:
                 continue
             yield s
 
-    est, recs = run(drop(flight(9.0, seed=6)))
+    est, _ = run(drop(flight(9.0, seed=6)))
     assert est.faults == [] and est.switches == []
     assert est.counters["measurement_missing"] == 1
     rmse = est.rmse_ned_mps()["active"]
