@@ -31,6 +31,7 @@ MODULES: tuple[str, ...] = (
     "bench_zenoh",
     "bench_rerun",
     "accuracy",
+    "corpus",
     "faults_accuracy",
     "fuzz_ingest",
     "soak",

@@ -290,88 +290,82 @@ class ReferenceFit:
         self.fitted_axes = frozenset(present)
 
 
+#: Time constants (s) of the low-pass a velocity step may come through: an autopilot's
+#: velocity is its estimator's output, which smooths a step in the GPS velocity.
+STEP_FILTER_TAUS_S = (0.0, 0.1, 0.2, 0.4)
+
+
 def classify_change(
     axis: int,
     recent: list[tuple[float, int, float, tuple[float, ...]]],
     sigma_mps: tuple[float, float, float],
 ) -> tuple[str, tuple[float, float, float], float]:
-    """Velocity step on ``axis``, accelerometer-bias step, or a drift of the reference?
+    """Velocity step on ``axis``, accelerometer-bias step, or an offset of the reference?
 
     ``recent``: (t, axis, residual, B(t) flat 9) of every axis over the last
-    ``change_window_s``. Three explanations of the residuals since a change time t_c:
+    ``change_window_s``. Three explanations of the residuals of all three axes:
 
-    - ``"velocity"``: a step on ``axis`` alone, r_j = β (a velocity-sensor bias);
-    - ``"accel"``: an accelerometer-bias step, r_k = −(B_k(τ) − B_k(t_c)) Δb on every axis;
-    - ``"ramp"``: a ramp on ``axis`` alone, r_j = s (τ − t_c): the reference drifting away
-      (an attitude error met by an acceleration, the autopilot's own estimate easing
-      back), not a sensor step; or a constant offset of ``axis`` over the whole window
-      (a reference fitted on too little data): both are ``"ramp"``.
+    - ``"velocity"``: a step on ``axis`` alone at t_c, r_j = β (1 − e^{−(τ−t_c)/τ_f}) with
+      τ_f in :data:`STEP_FILTER_TAUS_S` (a sensor bias, as the autopilot passes it on);
+    - ``"accel"``: an accelerometer-bias step at t_c, r_k = −(B_k(τ) − B_k(t_c)) Δb on
+      every axis: a ramp that rotates with the attitude;
+    - ``"offset"``: a constant offset of ``axis`` over the whole window, no change at all
+      (a reference fitted on too little data, e.g. just after a re-anchoring).
 
     A change must have at least ``MIN_PRE_SAMPLES`` samples of ``axis`` before it (a step
-    needs a before); with none, ``"undecided"``. Each is fitted for every candidate t_c (a sample time of ``axis``); residuals are
-    weighted by their axis's σ_r; the lowest BIC wins (parameters: 3 for the
-    accelerometer, 1 for the others, plus t_c). Returns (kind, Δb (body, m/s²), t_c).
+    needs a before); with fewer, ``"undecided"``. Each model is fitted for every candidate
+    t_c (a sample time of ``axis``); residuals are weighted by their axis's σ_r; the lowest
+    BIC wins (parameters: β, τ_f, t_c; Δb (3), t_c; the offset). Returns (kind, Δb (body,
+    m/s²), t_c).
     """
-    if len(recent) < 6:
-        return "velocity", (0.0, 0.0, 0.0), math.nan
     t = np.array([r[0] for r in recent])
     ax = np.array([r[1] for r in recent], dtype=np.intp)
+    on_axis = ax == axis
+    cand = t[on_axis][MIN_PRE_SAMPLES:-2]
+    if len(cand) < 1:
+        return "undecided", (0.0, 0.0, 0.0), math.nan
     res = np.array([r[2] for r in recent])
     Bf = np.array([r[3] for r in recent]).reshape(-1, 3, 3)
     s = np.asarray(sigma_mps)[ax]
-    t_axis = t[ax == axis]
-    cand = t_axis[MIN_PRE_SAMPLES:]
-    if len(cand) < 3:
-        return "undecided", (0.0, 0.0, 0.0), math.nan
-    on_axis = ax == axis
-    offset = float(np.median(res[on_axis]))
-    sse_o = float(np.sum(((res - np.where(on_axis, offset, 0.0)) / s) ** 2))
-    best_v = (math.inf, 0.0)
-    best_r = (math.inf, 0.0)
-    best_a = (math.inf, 0.0, np.zeros(3))
+    rw = res / s
     n_all = len(t)
-    for tc in cand[:-2]:
-        after = t >= tc
-        if after.sum() < 4:
-            continue
-        # step on `axis`
-        on_j = after & (ax == axis)
-        beta = float(np.median(res[on_j])) if on_j.any() else 0.0
-        pred_v = np.where(on_j, beta, 0.0)
-        sse_v = float(np.sum(((res - pred_v) / s) ** 2))
-        # ramp on `axis`
-        u = np.where(on_j, t - tc, 0.0) / s
-        uu = float(u @ u)
-        slope = float(u @ (res / s)) / uu if uu > 0.0 else 0.0
-        sse_r = float(np.sum((res / s - u * slope) ** 2))
-        if sse_r < best_r[0]:
-            best_r = (sse_r, float(tc))
-        # accelerometer step: r_k = −(B_k(τ) − B_k(t_c)) Δb for τ ≥ t_c
-        i_c = int(np.searchsorted(t, tc))
-        Bc = Bf[i_c] if i_c < len(Bf) else Bf[-1]
-        D = -(Bf - Bc)[np.arange(n_all), ax] * after[:, None]
-        Dw = D / s[:, None]
-        info = Dw.T @ Dw + np.eye(3) * 1e-6
-        db = np.linalg.solve(info, Dw.T @ (res / s))
-        sse_a = float(np.sum(((res - D @ db) / s) ** 2))
-        if sse_v < best_v[0]:
-            best_v = (sse_v, float(tc))
-        if sse_a < best_a[0]:
-            best_a = (sse_a, float(tc), db)
-    if not math.isfinite(best_v[0]) or not math.isfinite(best_a[0]):
-        return "velocity", (0.0, 0.0, 0.0), math.nan
     ln_n = math.log(n_all)
-    bic_v = n_all * math.log(max(best_v[0], 1e-12) / n_all) + 2 * ln_n
-    bic_a = n_all * math.log(max(best_a[0], 1e-12) / n_all) + 4 * ln_n
-    if sse_o < best_r[0]:
-        best_r = (sse_o, float(t_axis[0]))
-    bic_r = n_all * math.log(max(best_r[0], 1e-12) / n_all) + 2 * ln_n
-    db3 = best_a[2]
-    if bic_a < bic_v and bic_a <= bic_r:
-        return "accel", (float(db3[0]), float(db3[1]), float(db3[2])), best_a[1]
-    if bic_r < bic_v:
-        return "ramp", (0.0, 0.0, 0.0), best_r[1]
-    return "velocity", (0.0, 0.0, 0.0), best_v[1]
+
+    def bic(sse: float, n_params: int) -> float:
+        return n_all * math.log(max(sse, 1e-12) / n_all) + n_params * ln_n
+
+    offset = float(np.median(res[on_axis]))
+    best: tuple[float, str, tuple[float, float, float], float] = (
+        bic(float(np.sum(((res - np.where(on_axis, offset, 0.0)) / s) ** 2)), 1),
+        "offset",
+        (0.0, 0.0, 0.0),
+        float(t[on_axis][0]),
+    )
+    rows = np.arange(n_all)
+    for tc in cand:
+        after = t >= tc
+        on_j = after & on_axis
+        # velocity step on `axis`, through a low-pass of τ_f
+        for tau in STEP_FILTER_TAUS_S:
+            shape = np.where(on_j, 1.0, 0.0)
+            if tau > 0.0:
+                shape = shape * (1.0 - np.exp(-np.clip(t - tc, 0.0, None) / tau))
+            u = shape / s
+            uu = float(u @ u)
+            if uu <= 0.0:
+                continue
+            beta = float(u @ rw) / uu
+            b_v = bic(float(np.sum((rw - u * beta) ** 2)), 3 if tau > 0.0 else 2)
+            if b_v < best[0]:
+                best = (b_v, "velocity", (0.0, 0.0, 0.0), float(tc))
+        # accelerometer step: r_k = −(B_k(τ) − B_k(t_c)) Δb for τ ≥ t_c
+        Bc = Bf[int(np.searchsorted(t, tc))]
+        Dw = (-(Bf - Bc)[rows, ax] * after[:, None]) / s[:, None]
+        db = np.linalg.solve(Dw.T @ Dw + np.eye(3) * 1e-6, Dw.T @ rw)
+        b_a = bic(float(np.sum((rw - Dw @ db) ** 2)), 4)
+        if b_a < best[0]:
+            best = (b_a, "accel", (float(db[0]), float(db[1]), float(db[2])), float(tc))
+    return best[1], best[2], best[3]
 
 
 @dataclass
@@ -815,7 +809,7 @@ class FaultDetector:
             kind, db, t_c = classify_change(j0, list(self._recent), sig)
             if kind == "undecided":
                 return v  # the tests fail again on the next sample, with more history
-            if kind == "ramp":
+            if kind == "offset":
                 self.reference_drifts += 1
                 self._rebase(t_s, t_c, None, self.axes[j0].axis)
                 return tuple(  # type: ignore[return-value]

@@ -64,9 +64,21 @@ def test_an_accelerometer_step_is_blamed_on_the_accelerometer() -> None:
     assert abs(t_c - 1.0) <= 0.2
 
 
-def test_a_single_axis_ramp_is_a_drift_of_the_reference() -> None:
-    kind, _, _ = classify_change(1, _recent(axis_step=1, ramp_mps2=0.6), SIG)
-    assert kind == "ramp"
+def test_an_offset_over_the_whole_window_is_the_reference_not_a_step() -> None:
+    rec = [(t, j, r + (0.3 if j == 1 else 0.0), b) for t, j, r, b in _recent()]
+    kind, _, _ = classify_change(1, rec, SIG)
+    assert kind == "offset"
+
+
+def test_a_step_through_an_autopilots_filter_is_still_a_velocity_step() -> None:
+    """A 0.5 m/s step passed through a 0.2 s first-order low-pass (an EKF's output)."""
+    rec = [
+        (t, j, r + (0.5 * (1 - math.exp(-(t - 1.0) / 0.2)) if j == 2 and t >= 1.0 else 0.0), b)
+        for t, j, r, b in _recent()
+    ]
+    kind, _, t_c = classify_change(2, rec, SIG)
+    assert kind == "velocity"
+    assert abs(t_c - 1.0) <= 0.1
 
 
 def test_no_history_before_the_change_is_undecided() -> None:
