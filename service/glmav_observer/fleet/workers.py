@@ -188,6 +188,8 @@ class WorkerResult:
     latency: LatencyHistogram
     batches: int
     items: int
+    cpu_s: float = 0.0  # the worker's CPU time (user + system), s
+    wall_s: float = 0.0  # from ready to stop, s
 
 
 @dataclass
@@ -197,13 +199,15 @@ class FleetSummary:
     summary: ServiceSummary
     latency: LatencyHistogram
     routed: dict[int, int] = field(default_factory=dict)  # items per worker
+    worker_cpu_s: dict[int, float] = field(default_factory=dict)
     vehicles_per_worker: dict[int, list[int]] = field(default_factory=dict)
 
     def to_text(self) -> str:
         lines = [self.summary.to_text()]
         for w, sysids in sorted(self.vehicles_per_worker.items()):
             lines.append(
-                f"worker {w}: {len(sysids)} vehicles {sysids}, {self.routed.get(w, 0)} items"
+                f"worker {w}: {len(sysids)} vehicles {sysids}, {self.routed.get(w, 0)} items, "
+                f"CPU {self.worker_cpu_s.get(w, 0.0):.2f} s"
             )
         lat = self.latency.summary_ms()
         lines.append(
@@ -272,6 +276,7 @@ def _worker_main(
         outbox.send(("error", str(err)))
         return
     outbox.send(("ready", os.getpid()))
+    cpu0, wall0 = time.process_time(), time.monotonic()
     latency = LatencyHistogram()
     batches = items = 0
     n_vehicles = 0
@@ -303,7 +308,16 @@ def _worker_main(
                 service.outbox.clear()
     finally:
         service.close()
-    outbox.send(("result", WorkerResult(spec.index, service.summary(), latency, batches, items)))
+    result = WorkerResult(
+        spec.index,
+        service.summary(),
+        latency,
+        batches,
+        items,
+        cpu_s=time.process_time() - cpu0,
+        wall_s=time.monotonic() - wall0,
+    )
+    outbox.send(("result", result))
 
 
 def build_service(spec: WorkerSpec) -> Service:
@@ -509,6 +523,7 @@ class ShardedServer:
             latency=latency,
             routed={w.index: w.routed for w in self.workers},
             vehicles_per_worker={w.index: sorted(w.vehicles) for w in self.workers},
+            worker_cpu_s={r.index: r.cpu_s for r in results},
         )
 
 

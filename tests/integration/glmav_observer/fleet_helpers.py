@@ -14,22 +14,10 @@ SITL = str(Path(sys.executable).with_name("glmav-sitl"))
 
 
 def record_tlog(tmp: Path, seconds: float = 6.0, scenario: str = "hover") -> Path:
-    """A log of the simulator at the design rates (ATTITUDE 100 Hz, HIGHRES_IMU 250 Hz,
-    LOCAL_POSITION_NED 30 Hz, SIM_STATE 50 Hz; RAW_IMU and SCALED_IMU off), made at
-    full speed: about 0.25 s of CPU per simulated second."""
-    import glmav_sitl
+    """A log of the simulator at the design rates, with SIM_STATE truth (0.2 s CPU per s)."""
+    from glmav_sitl.fleet import record_tlog as record
 
-    text = (Path(glmav_sitl.__file__).with_name("data") / "sitl.toml").read_text()
-    text = re.sub(r"(?m)^(raw_imu|scaled_imu) = .*$", r"\1 = 0.0", text)
-    cfg = tmp / "sitl-design-rates.toml"
-    cfg.write_text(text, encoding="utf-8")
-    out = tmp / f"{scenario}-{seconds:g}s.tlog"
-    subprocess.run(
-        [SITL, "run", "--scenario", scenario, "--duration", str(seconds), "--speed", "max",
-         "--config", str(cfg), "--tlog", str(out)],
-        check=True, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    return out
+    return record(tmp / f"{scenario}-{seconds:g}s.tlog", seconds, scenario=scenario)
 
 
 def wait_bound_udp(port: int, proc: subprocess.Popen[str], timeout_s: float = 60.0) -> None:
