@@ -117,3 +117,23 @@ def test_a_tcp_stream_is_split_into_frames_for_the_workers(
     header, *rows = out.read_text().splitlines()
     assert header.startswith("schema,sysid")
     assert {int(r.split(",")[1]) for r in rows} == {1, 2, 3, 4}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--rerun", "serve"], "glmav-observer serve: --rerun serve: with several workers"),
+        (["--out", "records.txt"], "glmav-observer serve: records.txt: output must end in"),
+        (["--workers", "0"], "argument --workers: 0 workers: must be 1..256"),
+    ],
+)
+def test_bad_worker_options_exit_2_with_the_reason(
+    args: list[str], message: str, tmp_path: Path, free_udp_port: Callable[[], int]
+) -> None:
+    cmd = [OBS, "serve", "--link", f"udpin:127.0.0.1:{free_udp_port()}", *args]
+    if "--workers" not in args:
+        cmd += ["--workers", "2"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path, check=False)
+    assert r.returncode == 2
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr
