@@ -23,7 +23,9 @@ traffic out to several services, as mavlink-router does):
 - ``udpout:HOST:PORT``: one UDP socket per vehicle (its own source port, as K radios),
   one datagram per frame;
 - ``tcp:HOST:PORT`` (connect) / ``tcpin:HOST:PORT`` (listen): one stream carrying all
-  vehicles, as from a router; the frames due at one turn are written together.
+  vehicles, as from a router; the frames due at one turn are written together. A
+  ``tcp:`` stream blocks when the reader is slow (the generator runs late, as the
+  summary's lateness shows) rather than cutting a frame.
 
 The summary gives the frames sent and the generator's own CPU time over wall time (the
 fraction of one core it used).
@@ -46,7 +48,7 @@ from types import FrameType
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from glmav_sitl.mavlink.links import Link, LinkError, open_link
+from glmav_sitl.mavlink.links import Link, LinkError, TcpClientLink, open_link
 
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
@@ -310,6 +312,9 @@ def run_fleet(
             kind = conn.partition(":")[0]
             if kind in ("tcp", "tcpin"):
                 lk = open_link(conn)
+                if isinstance(lk, TcpClientLink) and lk.sock is not None:
+                    # a slow reader makes the generator late (counted), never cuts a frame
+                    lk.sock.setblocking(True)
                 opened.append(lk)
                 shared.append(lk)
             elif kind == "udpout":

@@ -9,8 +9,8 @@ vehicle's samples are estimated in order by one :class:`~glmav_observer.app.Serv
 Bytes without a MAVLink header go to worker 0 (its decoder counts them as garbage).
 
 Datagrams go one per frame batch through a ``multiprocessing`` pipe per worker: the
-parent gathers what it read in one turn (at most ``BATCH`` items per worker) and sends
-the list at once. Stream links (TCP, serial) are cut into frames here by the header's
+parent gathers what it reads (at most ``BATCH`` items per worker, for at most
+``FLUSH_AFTER_S`` = 1 ms) and sends the list at once. Stream links (TCP, serial) are cut into frames here by the header's
 length (a frame is taken when a magic byte follows it or the buffer ends with it, as the
 decoder's own resync rule does), and each frame goes to its vehicle's worker.
 
@@ -63,8 +63,11 @@ logger = logging.getLogger(__name__)
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
 _SIGNATURE_LEN = 13
-#: items per worker gathered before a pipe send (bounds the latency a batch adds)
+#: items per worker gathered before a pipe send
 BATCH = 64
+#: the longest an item waits in the parent for its batch to fill, s: one pipe send (and
+#: one worker wake-up) per millisecond instead of per datagram at moderate rates
+FLUSH_AFTER_S = 0.001
 
 
 class WorkerError(RuntimeError):
@@ -442,8 +445,12 @@ class ShardedServer:
                     lk.read()  # down: reconnect with backoff
                 else:
                     by_fd[fd] = (lid, lk)
+            pending = [w.batch[0][1] for w in self.workers if w.batch]
+            wait_s = 0.05
+            if pending:
+                wait_s = max(0.0, min(pending) + FLUSH_AFTER_S - clock())
             try:
-                ready, _, _ = select.select([*by_fd, *by_result], [], [], 0.05)
+                ready, _, _ = select.select([*by_fd, *by_result], [], [], wait_s)
             except (InterruptedError, ValueError, OSError):
                 continue
             for fd in ready:
@@ -465,8 +472,12 @@ class ShardedServer:
                     for sysid, piece in sp.feed(data):
                         self._queue(self.worker_of(sysid), (lid, t, piece, None))
                     break
+            now = clock()
             for w in self.workers:
-                self._flush(w)
+                if w.batch and now - w.batch[0][1] >= FLUSH_AFTER_S:
+                    self._flush(w)
+        for w in self.workers:
+            self._flush(w)
 
     def _from_worker(self, w: _Worker, links: dict[str, Link]) -> None:
         try:

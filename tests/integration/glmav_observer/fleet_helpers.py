@@ -72,6 +72,26 @@ def wait_drained(port: int, timeout_s: float = 30.0) -> int:
     return udp_queue(port)[1]
 
 
+def wait_drained_tcp(port: int, timeout_s: float = 30.0) -> None:
+    """Until the connections to TCP 127.0.0.1:``port`` have nothing in flight: nothing
+    left to send on the client side (tx queue), nothing left to read on the server side
+    (rx queue)."""
+    want = f"0100007F:{port:04X}"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        queued = 0
+        with open("/proc/net/tcp", encoding="ascii") as f:
+            for cols in (line.split() for line in f.readlines()[1:]):
+                tx, rx = (int(x, 16) for x in cols[4].split(":"))
+                if cols[1] == want and cols[3] != "0A":  # the server's side, not LISTEN
+                    queued += rx
+                elif cols[2] == want:  # the client's side
+                    queued += tx
+        if not queued:
+            return
+        time.sleep(0.05)
+
+
 def frames_sent(fleet_stdout: str) -> int:
     m = re.search(r"(\d+) frames sent", fleet_stdout)
     assert m is not None, fleet_stdout

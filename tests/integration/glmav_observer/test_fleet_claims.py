@@ -28,7 +28,7 @@ pytestmark = pytest.mark.timeout(240)
 
 VEHICLES = 6
 SERVICES = ("svc-a", "svc-b", "svc-c")
-FLIGHT_S = 14.0
+FLIGHT_S = 11.0
 #: the failover goal of issue 16
 TAKEOVER_S = 3.0
 

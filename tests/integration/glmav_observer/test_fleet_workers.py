@@ -21,10 +21,11 @@ from fleet_helpers import (
     record_tlog,
     wait_bound_udp,
     wait_drained,
+    wait_drained_tcp,
     wait_listening_tcp,
 )
 
-VEHICLES = 6
+VEHICLES = 4
 
 
 def _velocity_rows(path: Path) -> dict[int, list[tuple[Any, ...]]]:
@@ -65,18 +66,19 @@ def _serve_udp(tlog: Path, port: int, out: Path, workers: int) -> tuple[str, int
 def test_two_workers_estimate_what_one_process_estimates(
     tmp_path: Path, free_udp_port: Callable[[], int]
 ) -> None:
-    tlog = record_tlog(tmp_path, 5.0)
+    tlog = record_tlog(tmp_path, 3.0)
     out2, out1 = tmp_path / "w2.jsonl", tmp_path / "w1.jsonl"
     stdout2, sent2, drops2 = _serve_udp(tlog, free_udp_port(), out2, 2)
     stdout1, sent1, drops1 = _serve_udp(tlog, free_udp_port(), out1, 1)
     assert sent1 == sent2 > 0
-    # everything sent was decoded (loopback; the kernel dropped nothing at ~2.6k/s)
+    # everything sent was decoded (loopback; 4 x 430 = 1.7k datagrams/s: the single process
+    # held 1.8k/s without a drop at load average 9.7 on 2 cores, benchmarks/bench_fleet)
     assert (drops1, drops2) == (0, 0)
     for stdout in (stdout1, stdout2):
         assert f"frames_ok={sent1}" in stdout
-    # the least-loaded worker takes each new vehicle: 3 and 3
+    # the least-loaded worker takes each new vehicle: 2 and 2
     loads = re.findall(r"worker (\d): (\d+) vehicles", stdout2)
-    assert sorted(loads) == [("0", "3"), ("1", "3")]
+    assert sorted(loads) == [("0", "2"), ("1", "2")]
     rows2, rows1 = _velocity_rows(out2), _velocity_rows(out1)
     assert sorted(rows2) == list(range(1, VEHICLES + 1))
     for sysid in rows1:
@@ -84,7 +86,7 @@ def test_two_workers_estimate_what_one_process_estimates(
         # whichever process estimated them; seq per configuration never goes back (one
         # worker per vehicle, the merged file keeps each vehicle's order)
         assert rows2[sysid] == rows1[sysid]
-        assert len(rows1[sysid]) > 5 * 250 * 5 * 0.9  # ~5 s of 250 Hz IMU, 5 estimates each
+        assert len(rows1[sysid]) > 3 * 250 * 5 * 0.9  # ~3 s of 250 Hz IMU, 5 estimates each
 
 
 @pytest.mark.timeout(180)
@@ -105,6 +107,7 @@ def test_a_tcp_stream_is_split_into_frames_for_the_workers(
              "--link", f"tcp:127.0.0.1:{port}", "--stagger", "0.2"],
             check=True, capture_output=True, text=True, timeout=120,
         )  # fmt: skip
+        wait_drained_tcp(port)
     finally:
         serve.send_signal(signal.SIGINT)
         stdout, stderr = serve.communicate(timeout=60)
