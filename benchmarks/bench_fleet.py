@@ -276,7 +276,12 @@ def to_markdown(result: dict[str, Any]) -> str:
     m = r.get("machine") or machine()
     cols = ("mode", "vehicles", "sent_per_s", "dropped_pct", "p50_ms", "p99_ms", "max_ms",
             "worker_us_per_datagram", "generator_core_pct", "load1")  # fmt: skip
-    table = [{k: row.get(k, "") for k in cols} for row in r["rows"]]
+    per_vehicle = r["datagrams_per_vehicle_s"]
+    table = [
+        {**{k: row.get(k, "") for k in cols[:2]}, "nominal_per_s": row["vehicles"] * per_vehicle,
+         **{k: row.get(k, "") for k in cols[2:]}}
+        for row in r["rows"]
+    ]  # fmt: skip
     return "\n".join([
         f"Command: `python -m benchmarks.bench_fleet{' --quick' if r['quick'] else ''}` — "
         f"{r['seconds_per_point']:.0f} s per point; {m['cpu']}, {m['cores']} cores; load "
@@ -287,9 +292,14 @@ def to_markdown(result: dict[str, Any]) -> str:
         format_goals(r["goals"]),
         "",
         f"Traffic: `glmav-sitl fleet` replaying a simulator log at the design rates "
-        f"({r['datagrams_per_vehicle_s']} datagrams/s per vehicle) to one UDP port. "
+        f"({r['datagrams_per_vehicle_s']} datagrams/s per vehicle: `nominal_per_s`) to one UDP "
+        "port; `sent_per_s` is what the generator achieved (about 5 % below nominal from the "
+        "staggered starts; further below, the generator itself ran late). "
         "`dropped_pct`: datagrams sent but never decoded (kernel receive-buffer overflow). "
-        "Latency: socket read to records handed to the sinks, per datagram. The 1-worker "
+        "Latency: socket read to records handed to the sinks, per datagram: for 1 worker it "
+        "does not include the time a datagram waited in the kernel's receive buffer (a "
+        "backlog there shows as drops), for N workers it includes the wait in the pipes to "
+        "the workers (a backlog there shows as latency). The 1-worker "
         f"curve stops after its first point above {SATURATED_DROP_PCT:.0f} % dropped. "
         "`worker_us_per_datagram`: the workers' CPU time per datagram decoded.",
         "",
