@@ -22,9 +22,10 @@ heard in the last ``vehicle_timeout_s``:
 When a service dies its session ends, Zenoh withdraws its tokens (at once when the
 process dies and its TCP connections close, after the session lease otherwise), and the
 others claim its vehicles at their next turn. The new owner starts that vehicle's
-estimation from the live stream, and logs the last estimate the previous owner published
-(every claiming service keeps the latest ``<prefix>/<sysid>/velocity/active`` of every
-vehicle from a subscription) and the gap since it. Until it publishes, a query on
+estimation from the live stream, and logs the last health record the previous owner
+published (vehicle time, active configuration, isolated faults; every claiming service
+keeps the latest ``<prefix>/<sysid>/health`` of every vehicle from a subscription: 10 Hz
+per vehicle, where the velocity keys would be 250 Hz) and the gap since it. Until it publishes, a query on
 ``<prefix>/<sysid>/state`` is answered by no one; afterwards by the new owner.
 
 Messages of vehicles this service does not own are counted (``not_owned_messages``) and
@@ -105,8 +106,8 @@ class ClaimManager:
         self._seen: dict[int, float] = {}
         self._unclaimed_turns: dict[int, int] = {}
         self._members: set[str] = {self.zid}
-        #: last active estimate published by anyone: sysid -> (monotonic s, payload bytes)
-        self._last_active: dict[int, tuple[float, bytes]] = {}
+        #: last health record published by anyone: sysid -> (monotonic s, payload bytes)
+        self._last_health: dict[int, tuple[float, bytes]] = {}
         self.events: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._member_token = session.liveliness().declare_token(members_key(prefix, self.zid))
@@ -116,9 +117,7 @@ class ClaimManager:
         self._subscriber = session.liveliness().declare_subscriber(
             claim_key(prefix, "**"), self._on_token, history=True
         )
-        self._active_sub = session.declare_subscriber(
-            f"{prefix}/*/velocity/active", self._on_active
-        )
+        self._health_sub = session.declare_subscriber(f"{prefix}/*/health", self._on_health)
         self._thread = threading.Thread(target=self._loop, name="glmav-claims", daemon=True)
         self._thread.start()
 
@@ -148,12 +147,12 @@ class ClaimManager:
             elif zid != self.zid:
                 self._members.discard(zid)
 
-    def _on_active(self, sample: zenoh.Sample) -> None:
+    def _on_health(self, sample: zenoh.Sample) -> None:
         try:
-            sysid = int(str(sample.key_expr).split("/")[-3])
+            sysid = int(str(sample.key_expr).split("/")[-2])
         except (ValueError, IndexError):
             return
-        self._last_active[sysid] = (time.monotonic(), sample.payload.to_bytes())
+        self._last_health[sysid] = (time.monotonic(), sample.payload.to_bytes())
 
     # -- the estimation loop's side --------------------------------------------------------
     def saw(self, sysid: int) -> None:
@@ -220,7 +219,7 @@ class ClaimManager:
             logger.warning("claim of vehicle %d failed: %s", sysid, exc)
             return False
         self._tokens[sysid] = token
-        last = self._last_active.get(sysid)
+        last = self._last_health.get(sysid)
         event: dict[str, Any] = {"event": "claimed", "sysid": sysid, "t": time.monotonic()}
         if last is not None:
             t_seen, payload = last
@@ -230,7 +229,7 @@ class ClaimManager:
             except ValueError:
                 event["last_published"] = None
             logger.info(
-                "vehicle %d taken over: %.3f s since its last published estimate (t_boot %s s)",
+                "vehicle %d taken over: %.3f s since its last published health (t_boot %s s)",
                 sysid,
                 event["gap_s"],
                 (event["last_published"] or {}).get("t_boot_s"),
@@ -262,7 +261,7 @@ class ClaimManager:
         self.owned = frozenset()
         entities: list[Any] = [
             self._subscriber,
-            self._active_sub,
+            self._health_sub,
             self._member_sub,
             self._member_token,
         ]

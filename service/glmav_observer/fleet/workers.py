@@ -196,7 +196,7 @@ class WorkerResult:
 
 
 @dataclass
-class FleetSummary:
+class ShardedSummary:
     """The merged summary of all workers plus the router's own counters."""
 
     summary: ServiceSummary
@@ -320,7 +320,8 @@ def _worker_main(
         cpu_s=time.process_time() - cpu0,
         wall_s=time.monotonic() - wall0,
     )
-    outbox.send(("result", result))
+    with contextlib.suppress(BrokenPipeError, OSError):  # the parent may be gone
+        outbox.send(("result", result))
 
 
 def build_service(spec: WorkerSpec) -> Service:
@@ -517,7 +518,7 @@ class ShardedServer:
             w.inbox.close()
             w.results.close()
 
-    def close(self, *, timeout_s: float = 60.0) -> FleetSummary:
+    def close(self, *, timeout_s: float = 60.0) -> ShardedSummary:
         """Stop the workers (they flush and close their sinks), merge parts and summaries."""
         self._stop_workers(timeout_s=timeout_s)
         if self.out:
@@ -529,7 +530,7 @@ class ShardedServer:
         latency = LatencyHistogram()
         for r in results:
             latency.merge(r.latency)
-        return FleetSummary(
+        return ShardedSummary(
             summary=merge_summaries([r.summary for r in results], self.counters),
             latency=latency,
             routed={w.index: w.routed for w in self.workers},
@@ -594,7 +595,7 @@ def serve_sharded(
     specs: Sequence[WorkerSpec],
     links: Iterable[str],
     stop_event: threading.Event | None = None,
-) -> FleetSummary:
+) -> ShardedSummary:
     """Start the workers, open ``links``, route until SIGINT/SIGTERM (or the event)."""
     stop = stop_event if stop_event is not None else threading.Event()
     previous: dict[signal.Signals, Any] = {}

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 import signal
 import subprocess
 import threading
@@ -119,6 +120,7 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
     zcfg = client_config(tmp_path / "client.json5", router.port)
     ports = [free_udp_port() for _ in SERVICES]
     services: dict[str, subprocess.Popen[str]] = {}
+    logs: dict[str, str] = {}
     fleet: subprocess.Popen[str] | None = None
     try:
         for sid, port in zip(SERVICES, ports, strict=True):
@@ -155,8 +157,8 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
         for proc in services.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-        for proc in services.values():
-            proc.communicate(timeout=60)
+        for sid, proc in services.items():
+            logs[sid] = proc.communicate(timeout=60)[1]
         if fleet is not None and fleet.poll() is None:
             fleet.kill()
             fleet.wait()
@@ -183,6 +185,11 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
     print(f"double claims (s): {dict(doubles)}")
     for sysid, spans in doubles.items():
         assert max(spans) <= CLAIM_PERIOD_S + 0.25, (sysid, spans)
+    # the new owner said so, with the time since the last health record it had seen
+    survivors = "".join(text for sid, text in logs.items() if sid != victim)
+    for sysid in orphans:
+        m = re.search(rf"vehicle {sysid} taken over: ([\d.]+) s since", survivors)
+        assert m is not None and float(m.group(1)) <= TAKEOVER_S, survivors[-2000:]
     # each orphan is held again by exactly one of the survivors
     for sysid in orphans:
         assert len(watch.holders(sysid)) <= 1  # released at the survivors' clean stop
