@@ -193,3 +193,31 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
     # each orphan is held again by exactly one of the survivors
     for sysid in orphans:
         assert len(watch.holders(sysid)) <= 1  # released at the survivors' clean stop
+
+
+def test_a_double_claim_is_settled_by_rank_at_the_next_turn(router: RouterProcess) -> None:
+    from glmav_observer.fleet.claims import ClaimManager, rank
+
+    sessions = [client_session(router.port) for _ in range(2)]
+    # a period longer than the test: turns are run by hand below
+    managers = [ClaimManager(s, "glmav", period_s=3600.0) for s in sessions]
+    try:
+        for m in managers:
+            m.saw(7)
+        # the race that the least-loaded choice makes rare: both claim before either has
+        # seen the other's token (forced here through the claim step itself)
+        for m in managers:
+            assert m._claim(7)
+            m.owned = frozenset({7})
+        assert wait_until(lambda: all(len(m.claimants(7)) == 2 for m in managers), 10)
+        for m in managers:
+            m.turn()
+        keeper = min(managers, key=lambda m: rank(7, m.zid))
+        assert [7 in m.owned for m in managers] == [m is keeper for m in managers]
+        # the withdrawal reaches the keeper: one claim left, the keeper's
+        assert wait_until(lambda: keeper.claimants(7) == {keeper.zid}, 10)
+    finally:
+        for m in managers:
+            m.close()
+        for s in sessions:
+            s.close()
