@@ -17,7 +17,11 @@ import argparse
 import logging
 import os
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from glmav_observer.config import ServiceConfig
+    from glmav_observer.publish.sink import Sink
 
 DEFAULT_LINK = "udpin:127.0.0.1:14550"
 
@@ -100,7 +104,7 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _main_claim(config: Any, sinks: Any, links: list[str]) -> int:
+def _main_claim(config: ServiceConfig, sinks: list[Sink], links: list[str]) -> int:
     """One process, claiming vehicles: :func:`serve` with a ClaimingService."""
     from glmav_observer.app import serve
     from glmav_observer.fleet.claims import ClaimError, ClaimingService
@@ -116,7 +120,9 @@ def _main_claim(config: Any, sinks: Any, links: list[str]) -> int:
     return 0
 
 
-def _main_sharded(args: argparse.Namespace, config: Any, links: list[str], workers: int) -> int:
+def _main_sharded(
+    args: argparse.Namespace, config: ServiceConfig, links: list[str], workers: int
+) -> int:
     """``--workers N > 1``: the router here, the services in N worker processes."""
     from glmav_observer.fleet.workers import WorkerError, serve_sharded, worker_specs
     from glmav_observer.ingest.links import LinkError
