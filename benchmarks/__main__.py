@@ -28,6 +28,7 @@ MODULES: tuple[str, ...] = (
     "bench_observer",
     "bench_sitl",
     "bench_daemon",
+    "bench_fleet",
     "bench_zenoh",
     "bench_rerun",
     "accuracy",

@@ -11,6 +11,11 @@ window, and each vehicle's RMSE against SIM_STATE.
     python -m benchmarks.soak                  # 10 vehicles, 600 s (the record)
     python -m benchmarks.soak --quick          # 10 vehicles, 60 s
     GLMAV_SOAK_VEHICLES=20 GLMAV_SOAK_SECONDS=1800 python -m benchmarks.soak
+    GLMAV_SOAK_TRAFFIC=fleet python -m benchmarks.soak   # one glmav-sitl fleet process
+
+``GLMAV_SOAK_TRAFFIC=fleet`` replaces the N simulator processes by one ``glmav-sitl fleet``
+replaying one recorded flight as N vehicles to one port: the simulators no longer compete
+with the service for the cores, so the drops measured are the service's own.
 """
 
 from __future__ import annotations
@@ -36,7 +41,8 @@ def run(quick: bool = False) -> dict[str, Any]:
     duration = float(os.environ.get("GLMAV_SOAK_SECONDS", "60" if quick else "600"))
     warmup = min(60.0, duration / 4)
     load_before = os.getloadavg()
-    r = soak(n, duration, warmup, windows=4 if quick else 10)
+    traffic = os.environ.get("GLMAV_SOAK_TRAFFIC", "sitl")
+    r = soak(n, duration, warmup, windows=4 if quick else 10, traffic=traffic)
     r["loadavg_before"] = load_before
     r["loadavg_after"] = os.getloadavg()
     w = r["latency_windows"]
@@ -85,7 +91,8 @@ def to_markdown(result: dict[str, Any]) -> str:
     m = r.get("machine") or machine()
     rmse = [v for v in r["max_rmse_active_mps"].values() if v is not None]
     lines = [
-        f"Command: `python -m benchmarks.soak{' --quick' if r['quick'] else ''}` — "
+        f"Command: `{'GLMAV_SOAK_TRAFFIC=fleet ' if r.get('traffic') == 'fleet' else ''}"
+        f"python -m benchmarks.soak{' --quick' if r['quick'] else ''}` — "
         f"{r['n_vehicles']} vehicles × {r['duration_s']:.0f} s in real time, warm-up "
         f"{r['warmup_s']:.0f} s; {m['cpu']}, {m['cores']} cores; load average "
         f"{r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after (other "

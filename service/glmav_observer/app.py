@@ -422,11 +422,15 @@ def serve(
     sinks: Sequence[Sink],
     links: Iterable[str],
     stop_event: threading.Event | None = None,
+    *,
+    service: Service | None = None,
 ) -> ServiceSummary:
-    """Open ``links``, serve until SIGINT/SIGTERM (or ``stop_event``), close everything."""
+    """Open ``links``, serve until SIGINT/SIGTERM (or ``stop_event``), close everything.
+
+    ``service``: a Service built by the caller over ``sinks`` (e.g. a claiming one)."""
     stop = stop_event if stop_event is not None else threading.Event()
     opened: dict[str, Link] = {}
-    service = Service(config, sinks)
+    service = service if service is not None else Service(config, sinks)
     previous: dict[signal.Signals, Any] = {}
 
     def on_signal(signum: int, frame: FrameType | None) -> None:

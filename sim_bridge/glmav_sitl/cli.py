@@ -62,6 +62,19 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="HEX",
         help="sign outgoing MAVLink 2 packets with this 32-byte key (64 hex digits)",
     )
+    f = sub.add_parser(
+        "fleet", help="replay recorded .tlog files as K vehicles (a traffic generator)"
+    )
+    f.add_argument("--tlog", action="append", required=True, metavar="LOG",
+                   help="a recorded .tlog, repeatable (vehicle k replays log k mod n)")  # fmt: skip
+    f.add_argument("--vehicles", type=int, default=1, help="K vehicles (default 1)")
+    f.add_argument("--link", action="append", required=True, metavar="CONN",
+                   help="udpout:HOST:PORT, tcp:HOST:PORT or tcpin:HOST:PORT; repeat to fan out")  # fmt: skip
+    f.add_argument("--sysid-base", type=int, default=1, help="system id of vehicle 0 (default 1)")
+    f.add_argument("--duration", type=float, default=None, help="stop after S s (default: log end)")
+    f.add_argument("--speed", type=float, default=1.0, help="rate factor (default 1: as recorded)")
+    f.add_argument("--stagger", type=float, default=1.0, metavar="S",
+                   help="vehicle starts spread over S s (default 1)")  # fmt: skip
     sub.add_parser("scenarios", help="list the packaged scenarios")
     return ap
 
@@ -72,6 +85,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    if args.command == "fleet":
+        from glmav_sitl.fleet import main as fleet_main
+
+        return fleet_main(args)
     if args.command == "scenarios":
         for name in scenario_names():
             print(f"{name}: {load_scenario(name).description}")

@@ -3,16 +3,25 @@
 ``--link`` connection strings (repeatable; default: ``[service].links`` of the config,
 else ``udpin:127.0.0.1:14550``), ``--config configs/service.toml``, ``--zenoh PATH.json5``
 (enables Zenoh with that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve``
-and ``--out PATH.csv|.jsonl`` override the file. Exit codes: 0 stopped cleanly, 2 bad
-configuration or link.
+and ``--out PATH.csv|.jsonl`` override the file. ``--workers N`` (default: the number of
+cores) shards vehicles by system id across N worker processes
+(:mod:`glmav_observer.fleet.workers`; ``--workers 1`` is the single-process service);
+``--claim`` makes this service estimate only the vehicles it claims on Zenoh, so that
+several services can share one fleet (:mod:`glmav_observer.fleet.claims`). Exit codes:
+0 stopped cleanly, 2 bad configuration or link.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from glmav_observer.config import ServiceConfig
+    from glmav_observer.publish.sink import Sink
 
 DEFAULT_LINK = "udpin:127.0.0.1:14550"
 
@@ -31,7 +40,29 @@ def register(sub: Any) -> None:
     p.add_argument("--rerun", default=None, metavar="MODE",
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
+    p.add_argument("--workers", type=_workers, default=None, metavar="N",
+                   help="worker processes, vehicles sharded by system id (default: cores)")  # fmt: skip
+    p.add_argument("--claim", action="store_true",
+                   help="estimate only the vehicles claimed on Zenoh (several services, one fleet)")  # fmt: skip
     p.set_defaults(func=main)
+
+
+def _workers(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 1 <= n <= 256:
+        raise argparse.ArgumentTypeError(f"{n} workers: must be 1..256")
+    return n
+
+
+def default_workers() -> int:
+    """The number of cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -40,11 +71,18 @@ def main(args: argparse.Namespace) -> int:
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSinkError
 
+    workers = args.workers if args.workers is not None else default_workers()
     try:
         config = load_config(args.config)
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
         links = args.link or list(config.links) or [DEFAULT_LINK]
+    except (ConfigError, OSError, ValueError) as err:
+        print(f"glmav-observer serve: {err}", file=sys.stderr)
+        return 2
+    if workers > 1:
+        return _main_sharded(args, config, links, workers)
+    try:
         sinks = open_sinks(
             config,
             out=args.out,
@@ -55,10 +93,57 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, FileSinkError, OSError, ValueError) as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
+    if args.claim:
+        return _main_claim(config, sinks, links)
     try:
         summary = serve(config, sinks, links)
     except LinkError as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     print(summary.to_text())
+    return 0
+
+
+def _main_claim(config: ServiceConfig, sinks: list[Sink], links: list[str]) -> int:
+    """One process, claiming vehicles: :func:`serve` with a ClaimingService."""
+    from glmav_observer.app import serve
+    from glmav_observer.fleet.claims import ClaimError, ClaimingService
+    from glmav_observer.ingest.links import LinkError
+
+    try:
+        service = ClaimingService(config, sinks)
+        summary = serve(config, sinks, links, service=service)
+    except (ClaimError, LinkError) as err:
+        print(f"glmav-observer serve: {err}", file=sys.stderr)
+        return 2
+    print(summary.to_text())
+    return 0
+
+
+def _main_sharded(
+    args: argparse.Namespace, config: ServiceConfig, links: list[str], workers: int
+) -> int:
+    """``--workers N > 1``: the router here, the services in N worker processes."""
+    from glmav_observer.fleet.workers import WorkerError, serve_sharded, worker_specs
+    from glmav_observer.ingest.links import LinkError
+    from glmav_observer.publish.file_sink import FileSink, FileSinkError
+
+    try:
+        out = args.out if args.out is not None else (config.out or None)
+        if out:
+            FileSink(out).close()  # the final file: its name and folder are checked here
+        specs = worker_specs(
+            config,
+            workers,
+            out=out,
+            zenoh_config=args.zenoh,
+            zenoh_enabled=True if args.zenoh is not None else None,
+            rerun_mode=args.rerun,
+            claim=args.claim,
+        )
+        result = serve_sharded(specs, links)
+    except (WorkerError, LinkError, FileSinkError, OSError) as err:
+        print(f"glmav-observer serve: {err}", file=sys.stderr)
+        return 2
+    print(result.to_text())
     return 0

@@ -1,0 +1,313 @@
+"""``serve --claim``: several services see the same traffic; each vehicle is estimated once.
+
+Services that receive the same MAVLink (fanned out by mavlink-router, or one UDP
+broadcast) split the fleet through Zenoh. A service estimates and publishes a vehicle
+only while it holds that vehicle's claim, a liveliness token
+``<prefix>/@claim/<sysid>/<zid>`` (``zid``: the Zenoh session id, unique per process,
+so two services configured with the same service id still claim apart).
+
+Each claiming service also holds a member token ``<prefix>/@members/<zid>``. Every
+``period_s`` (the claim period, default 0.5 s) each service looks at the vehicles it has
+heard in the last ``vehicle_timeout_s``:
+
+- a vehicle nobody claims is claimed by the member with the fewest claims, ties broken
+  by the smallest ``rank(sysid, zid)`` (a hash: vehicles spread evenly, and every
+  service computes the same choice); a vehicle still unclaimed after two turns is
+  claimed by any service that hears it (the chosen one may not hear it);
+- when two services claimed the same vehicle at once, both see both tokens; the one
+  with the larger rank withdraws at its next turn, so a vehicle is published twice for
+  at most one claim period;
+- a vehicle no longer heard for ``vehicle_timeout_s`` is released.
+
+When a service dies its session ends, Zenoh withdraws its tokens (at once when the
+process dies and its TCP connections close, after the session lease otherwise), and the
+others claim its vehicles at their next turn. The new owner starts that vehicle's
+estimation from the live stream, and logs the last health record the previous owner
+published (vehicle time, active configuration, isolated faults; every claiming service
+keeps the latest ``<prefix>/<sysid>/health`` of every vehicle from a subscription: 10 Hz
+per vehicle, where the velocity keys would be 250 Hz) and the gap since it. Until it publishes, a query on
+``<prefix>/<sysid>/state`` is answered by no one; afterwards by the new owner.
+
+Messages of vehicles this service does not own are counted (``not_owned_messages``) and
+not estimated; messages that start no claim (a ground station's heartbeats) pass.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+from glmav_observer.app import Service
+from glmav_observer.config import ServiceConfig
+from glmav_observer.publish.sink import Sink
+
+if TYPE_CHECKING:
+    import zenoh
+
+logger = logging.getLogger(__name__)
+
+#: How often a service checks its claims, s (the longest a vehicle is published twice).
+CLAIM_PERIOD_S = 0.5
+#: A vehicle not heard for this long is released, s.
+VEHICLE_TIMEOUT_S = 5.0
+#: The messages that make a service claim their sender (the estimator's inputs).
+CLAIMING_MESSAGES = frozenset(
+    {"ATTITUDE", "HIGHRES_IMU", "SCALED_IMU", "RAW_IMU", "LOCAL_POSITION_NED"}
+)
+
+
+class ClaimError(ValueError):
+    """Claims cannot work with this configuration (the message says why)."""
+
+
+def claim_key(prefix: str, sysid: int | str = "*", zid: str | None = None) -> str:
+    base = f"{prefix}/@claim/{sysid}"
+    return base if zid is None else f"{base}/{zid}"
+
+
+def members_key(prefix: str, zid: str = "*") -> str:
+    return f"{prefix}/@members/{zid}"
+
+
+def rank(sysid: int, zid: str) -> int:
+    """The order of claimants for one vehicle (smallest first), the same on every host."""
+    return int.from_bytes(hashlib.blake2b(f"{sysid}/{zid}".encode(), digest_size=8).digest())
+
+
+class ClaimManager:
+    """Holds this service's claims and watches everyone's (thread-safe)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        prefix: str,
+        *,
+        period_s: float = CLAIM_PERIOD_S,
+        vehicle_timeout_s: float = VEHICLE_TIMEOUT_S,
+    ) -> None:
+        import zenoh as zenoh_mod
+
+        self._zenoh = zenoh_mod
+        self._session = session
+        self.prefix = prefix
+        self.zid = str(session.zid())
+        self.period_s = period_s
+        self.vehicle_timeout_s = vehicle_timeout_s
+        self._lock = threading.Lock()
+        self._claimants: dict[int, set[str]] = {}
+        self._tokens: dict[int, Any] = {}
+        #: the vehicles this service owns now (read without the lock by the estimation loop)
+        self.owned: frozenset[int] = frozenset()
+        self._seen: dict[int, float] = {}
+        self._unclaimed_turns: dict[int, int] = {}
+        self._members: set[str] = {self.zid}
+        #: last health record published by anyone: sysid -> (monotonic s, payload bytes)
+        self._last_health: dict[int, tuple[float, bytes]] = {}
+        self.events: list[dict[str, Any]] = []
+        self._stop = threading.Event()
+        self._member_token = session.liveliness().declare_token(members_key(prefix, self.zid))
+        self._member_sub = session.liveliness().declare_subscriber(
+            members_key(prefix), self._on_member, history=True
+        )
+        self._subscriber = session.liveliness().declare_subscriber(
+            claim_key(prefix, "**"), self._on_token, history=True
+        )
+        self._health_sub = session.declare_subscriber(f"{prefix}/*/health", self._on_health)
+        self._thread = threading.Thread(target=self._loop, name="glmav-claims", daemon=True)
+        self._thread.start()
+
+    # -- zenoh callbacks (Zenoh's threads) -------------------------------------------------
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        try:
+            sysid, zid = int(parts[-2]), parts[-1]
+        except (ValueError, IndexError):
+            return
+        with self._lock:
+            holders = self._claimants.setdefault(sysid, set())
+            if sample.kind == self._zenoh.SampleKind.PUT:
+                holders.add(zid)
+            else:
+                holders.discard(zid)
+                if zid != self.zid:
+                    self.events.append(
+                        {"event": "released", "sysid": sysid, "by": zid, "t": time.monotonic()}
+                    )
+
+    def _on_member(self, sample: zenoh.Sample) -> None:
+        zid = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == self._zenoh.SampleKind.PUT:
+                self._members.add(zid)
+            elif zid != self.zid:
+                self._members.discard(zid)
+
+    def _on_health(self, sample: zenoh.Sample) -> None:
+        try:
+            sysid = int(str(sample.key_expr).split("/")[-2])
+        except (ValueError, IndexError):
+            return
+        self._last_health[sysid] = (time.monotonic(), sample.payload.to_bytes())
+
+    # -- the estimation loop's side --------------------------------------------------------
+    def saw(self, sysid: int) -> None:
+        """A claiming message of ``sysid`` was heard (cheap: one dict write)."""
+        self._seen[sysid] = time.monotonic()
+
+    def claimants(self, sysid: int) -> set[str]:
+        with self._lock:
+            return set(self._claimants.get(sysid, ()))
+
+    # -- the claim turn --------------------------------------------------------------------
+    def _loop(self) -> None:
+        while not self._stop.wait(self.period_s):
+            try:
+                self.turn()
+            except Exception:  # never let the claims thread die silently
+                logger.exception("claims turn failed")
+
+    def turn(self) -> None:
+        """Claim unclaimed vehicles, settle double claims, release silent vehicles."""
+        now = time.monotonic()
+        owned = set(self.owned)
+        with self._lock:
+            load = {m: 0 for m in self._members}
+            for holders in self._claimants.values():
+                for z in holders:
+                    if z in load:
+                        load[z] += 1
+        for sysid, seen in sorted(self._seen.items()):
+            with self._lock:
+                others = self._claimants.get(sysid, set()) - {self.zid}
+            if now - seen > self.vehicle_timeout_s:
+                if sysid in owned:
+                    self._release(sysid, "silent")
+                    owned.discard(sysid)
+                del self._seen[sysid]
+                self._unclaimed_turns.pop(sysid, None)
+                continue
+            mine = rank(sysid, self.zid)
+            if sysid in owned:
+                if others and min(rank(sysid, z) for z in others) < mine:
+                    self._release(sysid, "double claim: the lower rank keeps it")
+                    owned.discard(sysid)
+                    load[self.zid] = load.get(self.zid, 1) - 1
+                continue
+            if others:
+                self._unclaimed_turns.pop(sysid, None)
+                continue
+            turns = self._unclaimed_turns[sysid] = self._unclaimed_turns.get(sysid, 0) + 1
+            least = min(load.values())
+            chosen = min((z for z, n in load.items() if n == least), key=lambda z: rank(sysid, z))
+            if (chosen == self.zid or turns > 2) and self._claim(sysid):
+                owned.add(sysid)
+                load[self.zid] = load.get(self.zid, 0) + 1
+                self._unclaimed_turns.pop(sysid, None)
+        self.owned = frozenset(owned)
+
+    def _claim(self, sysid: int) -> bool:
+        try:
+            token = self._session.liveliness().declare_token(
+                claim_key(self.prefix, sysid, self.zid)
+            )
+        except self._zenoh.ZError as exc:
+            logger.warning("claim of vehicle %d failed: %s", sysid, exc)
+            return False
+        self._tokens[sysid] = token
+        last = self._last_health.get(sysid)
+        event: dict[str, Any] = {"event": "claimed", "sysid": sysid, "t": time.monotonic()}
+        if last is not None:
+            t_seen, payload = last
+            event["gap_s"] = event["t"] - t_seen
+            try:
+                event["last_published"] = json.loads(payload)
+            except ValueError:
+                event["last_published"] = None
+            logger.info(
+                "vehicle %d taken over: %.3f s since its last published health (t_boot %s s)",
+                sysid,
+                event["gap_s"],
+                (event["last_published"] or {}).get("t_boot_s"),
+            )
+        else:
+            logger.info("vehicle %d claimed", sysid)
+        with self._lock:
+            self.events.append(event)
+        return True
+
+    def _release(self, sysid: int, why: str) -> None:
+        token = self._tokens.pop(sysid, None)
+        if token is not None:
+            try:
+                token.undeclare()
+            except self._zenoh.ZError as exc:
+                logger.debug("undeclare of the claim of %d failed: %s", sysid, exc)
+        logger.info("vehicle %d released (%s)", sysid, why)
+        with self._lock:
+            self.events.append(
+                {"event": "released_own", "sysid": sysid, "why": why, "t": time.monotonic()}
+            )
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+        for sysid in list(self._tokens):
+            self._release(sysid, "stopping")
+        self.owned = frozenset()
+        entities: list[Any] = [
+            self._subscriber,
+            self._health_sub,
+            self._member_sub,
+            self._member_token,
+        ]
+        for entity in entities:
+            try:
+                entity.undeclare()
+            except self._zenoh.ZError as exc:
+                logger.debug("undeclare failed: %s", exc)
+
+
+class ClaimingService(Service):
+    """A :class:`Service` that estimates only the vehicles it has claimed."""
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        sinks: Sequence[Sink] = (),
+        *,
+        period_s: float = CLAIM_PERIOD_S,
+    ) -> None:
+        from glmav_observer.publish.zenoh_sink import ZenohSink
+
+        zs = next((s for s in sinks if isinstance(s, ZenohSink)), None)
+        if zs is None:
+            for s in sinks:
+                s.close()
+            raise ClaimError("--claim needs Zenoh: give --zenoh FILE.json5 or [zenoh] enabled")
+        super().__init__(config, sinks)
+        self.claims = ClaimManager(
+            zs.session, zs.prefix, period_s=period_s, vehicle_timeout_s=zs.vehicle_timeout_s
+        )
+
+    def feed_message(self, msg: Any, t_arrival_s: float, link_id: str = "") -> int:
+        sysid = msg.get_srcSystem()
+        claims = self.claims
+        if sysid not in claims.owned:
+            if msg.get_type() in CLAIMING_MESSAGES:
+                claims.saw(sysid)
+                self.messages += 1
+                self.counters["not_owned_messages"] += 1
+                return 0
+            return super().feed_message(msg, t_arrival_s, link_id)
+        claims.saw(sysid)
+        return super().feed_message(msg, t_arrival_s, link_id)
+
+    def close(self) -> None:
+        # release the claims first: the others take over without waiting for the session
+        self.claims.close()
+        super().close()

@@ -1,0 +1,629 @@
+"""``serve --workers N``: one receiving process routes datagrams by system id to N workers.
+
+The parent process opens the links and reads them (as :meth:`Service.run` does). It does
+not parse MAVLink: it reads the sender's system id from the frame header (MAVLink 2,
+magic 0xFD: byte 5; MAVLink 1, magic 0xFE: byte 3) and hands the bytes, their arrival
+time and the sender's address to the worker that owns that vehicle. A vehicle is given
+to the worker with the fewest vehicles on first sight and stays there, so each
+vehicle's samples are estimated in order by one :class:`~glmav_observer.app.Service`.
+Bytes without a MAVLink header go to worker 0 (its decoder counts them as garbage).
+
+Datagrams go one per frame batch through a ``multiprocessing`` pipe per worker: the
+parent gathers what it reads (at most ``BATCH`` items per worker, for at most
+``FLUSH_AFTER_S`` = 1 ms) and sends the list at once. Stream links (TCP, serial) are cut into frames here by the header's
+length (a frame is taken when a magic byte follows it or the buffer ends with it, as the
+decoder's own resync rule does), and each frame goes to its vehicle's worker.
+
+What workers send back: SET_MESSAGE_INTERVAL frames for their vehicles (the parent
+writes them to the link and address the vehicle was heard on), an arrival-to-publish
+latency histogram, and their :class:`ServiceSummary` at the end, merged here.
+
+Outputs, as seen by the user:
+
+- Zenoh: every worker opens its own session with the same prefix and service id; keys
+  per vehicle are unchanged (a vehicle is on one worker), the ``state`` queryable
+  answers for all vehicles together, ``@alive/<service-id>`` and ``@config/<service-id>``
+  are declared by each worker (same key, same payload);
+- ``--out F.jsonl|.csv``: each worker writes ``F.w<i>.<ext>``; at stop they are joined
+  into ``F`` (worker by worker, so each vehicle's rows stay in order) and removed;
+- Rerun: ``save:PATH`` gives one file per worker (``PATH.w<i>.rrd``; open them together);
+  ``connect:URL`` connects every worker to the viewer; ``spawn`` and ``serve`` (one
+  viewer, one port) need ``--workers 1``.
+
+Workers ignore SIGINT/SIGTERM: the parent stops them by closing their pipe after the
+last batch, so nothing read is lost; a worker whose parent died sees the pipe close too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import multiprocessing
+import multiprocessing.connection
+import os
+import select
+import signal
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from glmav_observer.app import RATE_CHECK_PERIOD_S, Service, ServiceSummary, open_sinks
+from glmav_observer.config import ServiceConfig
+from glmav_observer.fleet.latency import LatencyHistogram
+from glmav_observer.ingest.links import Link
+
+logger = logging.getLogger(__name__)
+
+MAGIC_V1 = 0xFE
+MAGIC_V2 = 0xFD
+_SIGNATURE_LEN = 13
+#: items per worker gathered before a pipe send
+BATCH = 64
+#: the longest an item waits in the parent for its batch to fill, s: one pipe send (and
+#: one worker wake-up) per millisecond instead of per datagram at moderate rates
+FLUSH_AFTER_S = 0.001
+
+
+class WorkerError(RuntimeError):
+    """A worker could not start (its sinks failed to open); the message says why."""
+
+
+def sysid_of(data: bytes | bytearray, p: int = 0) -> int | None:
+    """The sender's system id from the MAVLink header at ``p`` (None: no header there)."""
+    n = len(data)
+    if p >= n:
+        return None
+    magic = data[p]
+    if magic == MAGIC_V2:
+        return data[p + 5] if p + 5 < n else None
+    if magic == MAGIC_V1:
+        return data[p + 3] if p + 3 < n else None
+    return None
+
+
+def frame_length(data: bytes | bytearray, p: int) -> int | None:
+    """Total length of the frame at ``p`` (None: header incomplete or no magic)."""
+    n = len(data)
+    magic = data[p]
+    if magic == MAGIC_V2:
+        if p + 3 > n:
+            return None
+        return 12 + data[p + 1] + (_SIGNATURE_LEN if data[p + 2] & 0x01 else 0)
+    if magic == MAGIC_V1:
+        if p + 2 > n:
+            return None
+        return 8 + data[p + 1]
+    return None
+
+
+def crc_ok(buf: bytes | bytearray, p: int, length: int) -> bool:
+    """Whether the frame at ``p`` has a good CRC (only for ambiguous frames: it costs)."""
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+    from pymavlink.generator.mavcrc import x25crc
+
+    v2 = buf[p] == MAGIC_V2
+    if v2:
+        msgid = buf[p + 7] | buf[p + 8] << 8 | buf[p + 9] << 16
+        end = p + 10 + buf[p + 1]
+    else:
+        msgid = buf[p + 5]
+        end = p + 6 + buf[p + 1]
+    cls = dialect.mavlink_map.get(msgid)
+    if cls is None or end + 2 > p + length:
+        return False
+    crc = x25crc(bytes(buf[p + 1 : end]))
+    crc.accumulate(bytes([cls.crc_extra]))
+    return bool(crc.crc == (buf[end] | buf[end + 1] << 8))
+
+
+class StreamSplitter:
+    """Cuts a byte stream into frames by header length, without decoding them.
+
+    ``feed(data)`` returns ``(sysid or None, bytes)`` pieces: whole frames with their
+    sender's system id, and runs of bytes that are not a frame (sysid None). A candidate
+    frame is taken when a magic byte follows it or it ends the bytes received so far;
+    when other bytes follow it, it is taken only if its CRC is good (a corrupt length
+    byte claims a wrong span); otherwise its magic byte is passed on as garbage and the
+    scan resumes one byte later, as the decoder's own resync does."""
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+
+    def feed(self, data: bytes) -> list[tuple[int | None, bytes]]:
+        buf = self._buf
+        buf.extend(data)
+        out: list[tuple[int | None, bytes]] = []
+        p = 0
+        n = len(buf)
+        garbage_from = -1
+        while p < n:
+            b = buf[p]
+            if b not in (MAGIC_V2, MAGIC_V1):
+                if garbage_from < 0:
+                    garbage_from = p
+                p += 1
+                continue
+            length = frame_length(buf, p)
+            if length is None or p + length > n:
+                break  # wait for more
+            end = p + length
+            if end < n and buf[end] not in (MAGIC_V1, MAGIC_V2) and not crc_ok(buf, p, length):
+                if garbage_from < 0:
+                    garbage_from = p
+                p += 1
+                continue
+            if garbage_from >= 0:
+                out.append((None, bytes(buf[garbage_from:p])))
+                garbage_from = -1
+            out.append((sysid_of(buf, p), bytes(buf[p:end])))
+            p = end
+        if garbage_from >= 0:
+            out.append((None, bytes(buf[garbage_from:p])))
+        del buf[:p]
+        return out
+
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """What a worker needs to build its Service and sinks (picklable)."""
+
+    index: int
+    config: ServiceConfig
+    out: str | None
+    zenoh_config: str | None
+    zenoh_enabled: bool | None
+    rerun_mode: str | None
+    claim: bool = False
+    log_level: str = "INFO"
+    log_format: str = "text"
+
+
+@dataclass
+class WorkerResult:
+    index: int
+    summary: ServiceSummary
+    latency: LatencyHistogram
+    batches: int
+    items: int
+    cpu_s: float = 0.0  # the worker's CPU time (user + system), s
+    wall_s: float = 0.0  # from ready to stop, s
+
+
+@dataclass
+class ShardedSummary:
+    """The merged summary of all workers plus the router's own counters."""
+
+    summary: ServiceSummary
+    latency: LatencyHistogram
+    routed: dict[int, int] = field(default_factory=dict)  # items per worker
+    worker_cpu_s: dict[int, float] = field(default_factory=dict)
+    vehicles_per_worker: dict[int, list[int]] = field(default_factory=dict)
+
+    def to_text(self) -> str:
+        lines = [self.summary.to_text()]
+        for w, sysids in sorted(self.vehicles_per_worker.items()):
+            lines.append(
+                f"worker {w}: {len(sysids)} vehicles {sysids}, {self.routed.get(w, 0)} items, "
+                f"CPU {self.worker_cpu_s.get(w, 0.0):.2f} s"
+            )
+        lat = self.latency.summary_ms()
+        lines.append(
+            f"arrival to publish: p50 {lat['p50_ms']:.3f} ms, p99 {lat['p99_ms']:.3f} ms, "
+            f"max {lat['max_ms']:.1f} ms over {int(lat['n'])} items"
+        )
+        return "\n".join(lines)
+
+
+def part_path(out: str, index: int) -> str:
+    """``F.w<i>.<ext>``: worker ``index``'s part of the output ``F.<ext>``."""
+    p = Path(out)
+    return str(p.with_name(f"{p.stem}.w{index}{p.suffix}"))
+
+
+def merge_parts(out: str, parts: Sequence[str]) -> int:
+    """Join the workers' parts into ``out`` (one CSV header) and remove them; rows written."""
+    rows = 0
+    csv = out.lower().endswith(".csv")
+    with open(out, "w", encoding="utf-8", newline="") as dst:
+        for i, part in enumerate(parts):
+            if not os.path.exists(part):
+                continue
+            with open(part, encoding="utf-8", newline="") as src:
+                for j, line in enumerate(src):
+                    if csv and j == 0:
+                        if i == 0 or rows == 0:
+                            dst.write(line)
+                        continue
+                    dst.write(line)
+                    rows += 1
+            os.remove(part)
+    return rows
+
+
+def worker_rerun_mode(mode: str | None, index: int) -> str | None:
+    """The Rerun mode of worker ``index`` for the user's ``mode`` (see the module doc)."""
+    if mode is None or mode == "off":
+        return mode
+    if mode.startswith("save:"):
+        p = Path(mode[5:])
+        return "save:" + str(p.with_name(f"{p.stem}.w{index}{p.suffix or '.rrd'}"))
+    if mode.startswith("connect"):
+        return mode
+    raise WorkerError(
+        f"--rerun {mode}: with several workers Rerun can only save:PATH (one file per "
+        "worker) or connect:URL; use --workers 1 for spawn or serve"
+    )
+
+
+# ---------------------------------------------------------------------- worker side
+def _worker_main(
+    spec: WorkerSpec,
+    inbox: multiprocessing.connection.Connection,
+    outbox: multiprocessing.connection.Connection,
+) -> None:
+    """A worker process: its own Service and sinks, fed by the parent's batches."""
+    from glmav_observer.logs import configure_logging
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    configure_logging(spec.log_level, spec.log_format)
+    try:
+        service = build_service(spec)
+    except Exception as err:  # reported to the parent, which exits 2 with it
+        outbox.send(("error", str(err)))
+        return
+    outbox.send(("ready", os.getpid()))
+    cpu0, wall0 = time.process_time(), time.monotonic()
+    latency = LatencyHistogram()
+    batches = items = 0
+    n_vehicles = 0
+    next_rate_check = time.monotonic()
+    clock = time.monotonic
+    try:
+        while True:
+            if inbox.poll(0.05):
+                try:
+                    batch = inbox.recv()
+                except EOFError:
+                    break
+                if batch is None:
+                    break
+                batches += 1
+                for link_id, t_arrival_s, data, peer in batch:
+                    service.current_peer = peer
+                    service.feed_bytes(link_id, data, t_arrival_s, datagram=True)
+                    latency.add(clock() - t_arrival_s)
+                items += len(batch)
+            now = clock()
+            nv = len(service.ingest.vehicles)
+            if nv != n_vehicles or now >= next_rate_check:
+                n_vehicles = nv
+                service.rate_requests()
+                next_rate_check = now + RATE_CHECK_PERIOD_S
+            if service.outbox:
+                outbox.send(("out", list(service.outbox)))
+                service.outbox.clear()
+    finally:
+        service.close()
+    result = WorkerResult(
+        spec.index,
+        service.summary(),
+        latency,
+        batches,
+        items,
+        cpu_s=time.process_time() - cpu0,
+        wall_s=time.monotonic() - wall0,
+    )
+    with contextlib.suppress(BrokenPipeError, OSError):  # the parent may be gone
+        outbox.send(("result", result))
+
+
+def build_service(spec: WorkerSpec) -> Service:
+    """The worker's Service with its sinks (a claiming one with ``spec.claim``)."""
+    sinks = open_sinks(
+        spec.config,
+        out=None if spec.out is None else part_path(spec.out, spec.index),
+        zenoh_config=spec.zenoh_config,
+        zenoh_enabled=spec.zenoh_enabled,
+        rerun_mode=worker_rerun_mode(spec.rerun_mode, spec.index),
+        recording_name=f"glmav-observer worker {spec.index}",
+    )
+    if spec.claim:
+        from glmav_observer.fleet.claims import ClaimingService
+
+        return ClaimingService(spec.config, sinks)
+    return Service(spec.config, sinks)
+
+
+# ---------------------------------------------------------------------- parent side
+@dataclass
+class _Worker:
+    index: int
+    process: Any
+    inbox: multiprocessing.connection.Connection  # parent writes
+    results: multiprocessing.connection.Connection  # parent reads
+    vehicles: list[int] = field(default_factory=list)
+    batch: list[tuple[str, float, bytes, Any]] = field(default_factory=list)
+    routed: int = 0
+    result: WorkerResult | None = None
+
+
+class ShardedServer:
+    """The parent of ``serve --workers N``: starts workers, routes, merges their results."""
+
+    def __init__(self, specs: Sequence[WorkerSpec], *, start_timeout_s: float = 60.0) -> None:
+        ctx = multiprocessing.get_context("spawn")  # no inherited sessions or threads
+        self.workers: list[_Worker] = []
+        self.owner: dict[int, int] = {}
+        self.counters: Counter[str] = Counter()
+        self.out = specs[0].out if specs else None
+        try:
+            for spec in specs:
+                inbox_r, inbox_w = ctx.Pipe(duplex=False)
+                res_r, res_w = ctx.Pipe(duplex=False)
+                proc = ctx.Process(
+                    target=_worker_main,
+                    args=(spec, inbox_r, res_w),
+                    name=f"glmav-worker-{spec.index}",
+                    daemon=True,
+                )
+                proc.start()
+                inbox_r.close()
+                res_w.close()
+                self.workers.append(_Worker(spec.index, proc, inbox_w, res_r))
+            deadline = time.monotonic() + start_timeout_s
+            for w in self.workers:
+                left = max(0.0, deadline - time.monotonic())
+                if not w.results.poll(left):
+                    raise WorkerError(f"worker {w.index} did not start in {start_timeout_s:.0f} s")
+                try:
+                    kind, payload = w.results.recv()
+                except EOFError:
+                    raise WorkerError(f"worker {w.index} exited while starting") from None
+                if kind == "error":
+                    raise WorkerError(str(payload))
+        except BaseException:
+            self._stop_workers(timeout_s=10.0)
+            raise
+
+    # -- routing -----------------------------------------------------------------------
+    def worker_of(self, sysid: int | None) -> _Worker:
+        """The worker owning ``sysid`` (assigned to the least loaded one on first sight)."""
+        if sysid is None:
+            return self.workers[0]
+        w = self.owner.get(sysid)
+        if w is None:
+            w = min(self.workers, key=lambda x: (len(x.vehicles), x.index)).index
+            self.owner[sysid] = w
+            self.workers[w].vehicles.append(sysid)
+            logger.info("vehicle routed", extra={"sysid": sysid, "worker": w})
+        return self.workers[w]
+
+    def _queue(self, w: _Worker, item: tuple[str, float, bytes, Any]) -> None:
+        w.batch.append(item)
+        if len(w.batch) >= BATCH:
+            self._flush(w)
+
+    def _flush(self, w: _Worker) -> None:
+        if not w.batch:
+            return
+        try:
+            w.inbox.send(w.batch)
+        except (BrokenPipeError, OSError):
+            self.counters["items_lost_worker_gone"] += len(w.batch)
+        w.routed += len(w.batch)
+        w.batch = []
+
+    def route_datagram(self, link_id: str, data: bytes, t_arrival_s: float, peer: Any) -> None:
+        sysid = sysid_of(data)
+        if sysid is None:  # garbage before the first frame: find the first header
+            q = min((x for x in (data.find(b"\xfd"), data.find(b"\xfe")) if x >= 0), default=-1)
+            sysid = sysid_of(data, q) if q >= 0 else None
+        self._queue(self.worker_of(sysid), (link_id, t_arrival_s, data, peer))
+
+    # -- the loop ----------------------------------------------------------------------
+    def run(
+        self,
+        links: dict[str, Link],
+        stop_event: threading.Event,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Read ``links`` until ``stop_event`` is set, routing to the workers."""
+        splitters: dict[str, StreamSplitter] = {}
+        by_result = {w.results.fileno(): w for w in self.workers}
+        while not stop_event.is_set():
+            by_fd: dict[int, tuple[str, Link]] = {}
+            for lid, lk in links.items():
+                fd = lk.fileno()
+                if fd is None:
+                    lk.read()  # down: reconnect with backoff
+                else:
+                    by_fd[fd] = (lid, lk)
+            pending = [w.batch[0][1] for w in self.workers if w.batch]
+            wait_s = 0.05
+            if pending:
+                wait_s = max(0.0, min(pending) + FLUSH_AFTER_S - clock())
+            try:
+                ready, _, _ = select.select([*by_fd, *by_result], [], [], wait_s)
+            except (InterruptedError, ValueError, OSError):
+                continue
+            for fd in ready:
+                if fd in by_result:
+                    self._from_worker(by_result[fd], links)
+                    continue
+                lid, lk = by_fd[fd]
+                while True:  # drain the socket
+                    data = lk.read()
+                    if not data:
+                        break
+                    t = clock()
+                    if lk.datagram:
+                        self.route_datagram(lid, data, t, lk.peer)
+                        continue
+                    sp = splitters.get(lid)
+                    if sp is None:
+                        sp = splitters[lid] = StreamSplitter()
+                    for sysid, piece in sp.feed(data):
+                        self._queue(self.worker_of(sysid), (lid, t, piece, None))
+                    break
+            now = clock()
+            for w in self.workers:
+                if w.batch and now - w.batch[0][1] >= FLUSH_AFTER_S:
+                    self._flush(w)
+        for w in self.workers:
+            self._flush(w)
+
+    def _from_worker(self, w: _Worker, links: dict[str, Link]) -> None:
+        try:
+            kind, payload = w.results.recv()
+        except (EOFError, OSError):
+            return
+        if kind == "out":
+            for lid, frame, peer in payload:
+                if lid in links:
+                    links[lid].write(frame, peer)
+        elif kind == "result":
+            w.result = payload
+
+    # -- stop --------------------------------------------------------------------------
+    def _stop_workers(self, *, timeout_s: float) -> None:
+        for w in self.workers:
+            self._flush(w)
+            with contextlib.suppress(BrokenPipeError, OSError):
+                w.inbox.send(None)
+        deadline = time.monotonic() + timeout_s
+        for w in self.workers:
+            while w.result is None:
+                left = deadline - time.monotonic()
+                if left <= 0 or not w.results.poll(left):
+                    break
+                try:
+                    kind, payload = w.results.recv()
+                except (EOFError, OSError):
+                    break
+                if kind == "result":
+                    w.result = payload
+            w.process.join(max(0.1, deadline - time.monotonic()))
+            if w.process.is_alive():
+                logger.warning("worker did not stop: killed", extra={"worker": w.index})
+                w.process.kill()
+                w.process.join(5.0)
+            w.inbox.close()
+            w.results.close()
+
+    def close(self, *, timeout_s: float = 60.0) -> ShardedSummary:
+        """Stop the workers (they flush and close their sinks), merge parts and summaries."""
+        self._stop_workers(timeout_s=timeout_s)
+        if self.out:
+            merge_parts(self.out, [part_path(self.out, w.index) for w in self.workers])
+        results = [w.result for w in self.workers if w.result is not None]
+        missing = [w.index for w in self.workers if w.result is None]
+        if missing:
+            self.counters["workers_without_summary"] += len(missing)
+        latency = LatencyHistogram()
+        for r in results:
+            latency.merge(r.latency)
+        return ShardedSummary(
+            summary=merge_summaries([r.summary for r in results], self.counters),
+            latency=latency,
+            routed={w.index: w.routed for w in self.workers},
+            vehicles_per_worker={w.index: sorted(w.vehicles) for w in self.workers},
+            worker_cpu_s={r.index: r.cpu_s for r in results},
+        )
+
+
+def merge_summaries(parts: Iterable[ServiceSummary], extra: Counter[str]) -> ServiceSummary:
+    """One summary from the workers': vehicles are disjoint, counters add up."""
+    vehicles = {}
+    links: dict[str, Counter[str]] = {}
+    service: Counter[str] = Counter(extra)
+    records = messages = 0
+    for s in parts:
+        vehicles.update(s.vehicles)
+        for lid, c in s.link_counters.items():
+            links.setdefault(lid, Counter()).update(c)
+        service.update(s.service_counters)
+        records += s.records
+        messages += s.messages
+    return ServiceSummary(
+        vehicles=dict(sorted(vehicles.items())),
+        link_counters={k: dict(sorted(v.items())) for k, v in sorted(links.items())},
+        service_counters=dict(sorted(service.items())),
+        records=records,
+        messages=messages,
+    )
+
+
+def worker_specs(
+    config: ServiceConfig,
+    workers: int,
+    *,
+    out: str | None = None,
+    zenoh_config: str | None = None,
+    zenoh_enabled: bool | None = None,
+    rerun_mode: str | None = None,
+    claim: bool = False,
+) -> list[WorkerSpec]:
+    """One spec per worker; raises WorkerError for a Rerun mode workers cannot share."""
+    level = logging.getLevelName(logging.getLogger().getEffectiveLevel())
+    mode = rerun_mode if rerun_mode is not None else config.rerun.mode
+    worker_rerun_mode(mode, 0)  # checks it
+    path = out if out is not None else (config.out or None)
+    return [
+        WorkerSpec(
+            index=i,
+            config=dataclasses.replace(config),
+            out=path,
+            zenoh_config=zenoh_config,
+            zenoh_enabled=zenoh_enabled,
+            rerun_mode=mode,
+            claim=claim,
+            log_level=level if isinstance(level, str) else "INFO",
+        )
+        for i in range(workers)
+    ]
+
+
+def serve_sharded(
+    specs: Sequence[WorkerSpec],
+    links: Iterable[str],
+    stop_event: threading.Event | None = None,
+) -> ShardedSummary:
+    """Start the workers, open ``links``, route until SIGINT/SIGTERM (or the event)."""
+    stop = stop_event if stop_event is not None else threading.Event()
+    previous: dict[signal.Signals, Any] = {}
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        logger.info("stopping", extra={"signal": signal.Signals(signum).name})
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_signal)
+    opened: dict[str, Link] = {}
+    server: ShardedServer | None = None
+    try:
+        server = ShardedServer(specs)
+        config = specs[0].config
+        for conn in links:
+            opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
+            logger.info("link open", extra={"link": conn, "workers": len(specs)})
+        server.run(opened, stop)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for lk in opened.values():
+            lk.close()
+        result = server.close() if server is not None else None
+    assert result is not None
+    for lk in opened.values():
+        for k, v in lk.counters.items():
+            result.summary.service_counters[k] = result.summary.service_counters.get(k, 0) + v
+    return result

@@ -1,0 +1,112 @@
+"""Routing by the header's system id, stream splitting, output merging (no sockets)."""
+
+from __future__ import annotations
+
+import collections
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v10 import ardupilotmega as mav1
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+from glmav_observer.app import ServiceSummary
+from glmav_observer.fleet.latency import LatencyHistogram
+from glmav_observer.fleet.workers import (
+    StreamSplitter,
+    WorkerError,
+    merge_parts,
+    merge_summaries,
+    part_path,
+    sysid_of,
+    worker_rerun_mode,
+)
+from glmav_observer.ingest.framing import FrameDecoder
+
+
+def _att(sysid: int, i: int, *, v1: bool = False) -> bytes:
+    m = (mav1 if v1 else mav2).MAVLink(None, srcSystem=sysid, srcComponent=1)
+    return bytes(m.attitude_encode(10 * i, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0).pack(m))
+
+
+def test_sysid_is_read_from_both_header_versions() -> None:
+    assert sysid_of(_att(17, 1)) == 17
+    assert sysid_of(_att(201, 1, v1=True)) == 201
+    assert sysid_of(b"\x00\x01") is None
+    assert sysid_of(b"\xfd\x01\x00") is None  # header cut short
+
+
+def test_stream_splitter_gives_whole_frames_and_garbage_whatever_the_cuts() -> None:
+    frames = [_att(s, i, v1=(i % 3 == 0)) for i in range(30) for s in (3, 9)]
+    garbage = b"\x00garbage\x11"
+    stream = garbage + b"".join(frames[:10]) + garbage + b"".join(frames[10:])
+    for cut in (1, 7, 64, 1000):
+        sp = StreamSplitter()
+        pieces: list[tuple[int | None, bytes]] = []
+        for k in range(0, len(stream), cut):
+            pieces += sp.feed(stream[k : k + cut])
+        whole = [(s, p) for s, p in pieces if s is not None]
+        assert [p for _, p in whole] == frames
+        assert [s for s, _ in whole] == [3, 9] * 30
+        assert b"".join(p for s, p in pieces if s is None) == garbage * 2
+        # every frame decodes in the worker's datagram mode; the garbage is counted there
+        dec = FrameDecoder(datagram=True)
+        n = sum(len(dec.feed(p)) for _, p in pieces)
+        assert n == 60 and dec.counters.counts["garbage_bytes"] == 2 * len(garbage)
+
+
+def test_a_corrupt_length_does_not_swallow_the_next_frames() -> None:
+    a, b, c = _att(1, 1), _att(1, 2), _att(1, 3)
+    bad = bytearray(a)
+    bad[1] = 200  # the length byte now claims 200 bytes of payload
+    sp = StreamSplitter()
+    pieces = sp.feed(bytes(bad) + b + c)
+    assert pieces == []  # the claimed 212 bytes have not all arrived: wait, as the decoder does
+    for i in range(4, 12):
+        pieces += sp.feed(_att(1, i))
+    frames = [p for s, p in pieces if s is not None]
+    # no magic byte after the claimed span: resync one byte past the bad magic, lose nothing
+    assert frames == [b, c] + [_att(1, i) for i in range(4, 12)]
+    assert b"".join(p for s, p in pieces if s is None) == bytes(bad)
+
+
+def test_parts_are_joined_with_one_csv_header(tmp_path: Path) -> None:
+    out = str(tmp_path / "r.csv")
+    assert part_path(out, 1) == str(tmp_path / "r.w1.csv")
+    Path(part_path(out, 0)).write_text("h\n1\n2\n")
+    Path(part_path(out, 1)).write_text("h\n3\n")
+    assert merge_parts(out, [part_path(out, 0), part_path(out, 1)]) == 3
+    assert Path(out).read_text() == "h\n1\n2\n3\n"
+    assert not Path(part_path(out, 0)).exists()
+    js = str(tmp_path / "r.jsonl")
+    Path(part_path(js, 0)).write_text('{"a":1}\n')
+    Path(part_path(js, 1)).write_text('{"a":2}\n')
+    assert merge_parts(js, [part_path(js, 0), part_path(js, 1)]) == 2
+
+
+def test_rerun_modes_with_workers() -> None:
+    assert worker_rerun_mode("save:/tmp/x.rrd", 2) == "save:/tmp/x.w2.rrd"
+    assert worker_rerun_mode("connect:rerun+http://127.0.0.1:9876/proxy", 1).startswith("connect")
+    assert worker_rerun_mode("off", 0) == "off"
+    with pytest.raises(WorkerError, match="use --workers 1 for spawn or serve"):
+        worker_rerun_mode("serve", 0)
+
+
+def test_summaries_merge_disjoint_vehicles_and_add_counters() -> None:
+    a = ServiceSummary({}, {"udp": {"frames_ok": 5}}, {"x": 1}, records=10, messages=5)
+    b = ServiceSummary({}, {"udp": {"frames_ok": 7, "bad_crc": 1}}, {"x": 2}, 3, 8)
+    m = merge_summaries([a, b], collections.Counter({"routed": 4}))
+    assert m.link_counters == {"udp": {"bad_crc": 1, "frames_ok": 12}}
+    assert m.service_counters == {"routed": 4, "x": 3}
+    assert (m.records, m.messages) == (13, 13)
+
+
+def test_latency_histogram_quantiles_within_one_bin() -> None:
+    h = LatencyHistogram()
+    for k in range(1, 1001):
+        h.add(k * 1e-6)  # 1 µs .. 1 ms, uniform
+    # bins are 10^(1/50) wide (4.7 %): a quantile is its bin's upper edge
+    assert h.quantile(0.5) == pytest.approx(500e-6, rel=0.047)
+    assert h.quantile(0.99) == pytest.approx(990e-6, rel=0.047)
+    g = LatencyHistogram()
+    g.merge(h)
+    assert g.n == 1000
