@@ -30,6 +30,8 @@ DEFAULT_RATES_HZ: dict[str, float] = {
     "HIGHRES_IMU": 250.0,
     "LOCAL_POSITION_NED": 30.0,
     "SIM_STATE": 50.0,
+    "EKF_STATUS_REPORT": 2.0,  # ArduPilot: is the velocity aided?
+    "GPS_RAW_INT": 5.0,  # fix type: a GPS loss makes the autopilot's velocity unaided
 }
 
 

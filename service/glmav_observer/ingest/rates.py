@@ -23,6 +23,9 @@ MESSAGE_IDS: dict[str, int] = {
     "HIGHRES_IMU": mavlink_dialect.MAVLINK_MSG_ID_HIGHRES_IMU,
     "LOCAL_POSITION_NED": mavlink_dialect.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     "SIM_STATE": mavlink_dialect.MAVLINK_MSG_ID_SIM_STATE,
+    # what the autopilot's velocity rests on (estimation/vehicle.py, "The autopilot's word")
+    "EKF_STATUS_REPORT": mavlink_dialect.MAVLINK_MSG_ID_EKF_STATUS_REPORT,
+    "GPS_RAW_INT": mavlink_dialect.MAVLINK_MSG_ID_GPS_RAW_INT,
 }
 
 
