@@ -251,6 +251,16 @@ class ObserverBank:
         """(3, 3) the E of the last step (identity before the first)."""
         return np.array(self._E_last, dtype=np.float64).reshape(3, 3)
 
+    def set_gamma(self, config: str, gamma: float) -> None:
+        """Change one configuration's gain γ (1/s; finite, > 0) from the next step on."""
+        if not (math.isfinite(gamma) and gamma > 0.0):
+            raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
+        g = list(self.gamma_gain)
+        g[_config_index(config)] = float(gamma)
+        self.gamma_gain = tuple(g)
+        self._gamma_arr = np.array(self.gamma_gain)
+        self._h_cached = math.nan  # the φ-terms depend on γ
+
     # ------------------------------------------------------------------ state access
     @property
     def x_hat_body_mps(self) -> FloatArray:

@@ -37,7 +37,10 @@ multiple of s_j = √(σ_r,j² + σ²_pred,j + σ²_imu), never a number tuned o
 Tests (thresholds in :class:`FdiConfig`):
 
 - dropout: ``dropout_samples`` consecutive NaN samples;
-- freeze: ``freeze_repeats`` exact repeats of the previous value;
+- freeze: ``freeze_repeats`` exact repeats of the previous value, if the measurement is
+  noisy (white noise above ``freeze_noise_mps``: a noisy value never repeats) or the IMU
+  says the axis's velocity changed by more than ``freeze_motion_mps`` since that value was
+  first seen (a noise-free or coarse GPS repeats its value in a hover);
 - bias: |median of the last ``bias_samples`` residuals| > max(``bias_threshold_mps``,
   ``bias_sigma`` · s_j) (the median: one outlier cannot move it);
 - noise: median of the last ``noise_samples`` squared successive differences over its
@@ -122,6 +125,12 @@ class FdiConfig:
     dropout_samples: int = 2
     missing_timeout_s: float = 0.5
     freeze_repeats: int = 3
+    #: the IMU-predicted change of an axis since its value was first seen beyond which a
+    #: repeat of that value counts towards a freeze
+    freeze_motion_mps: float = 0.1
+    #: white noise (σ of the measurement, from successive differences) above which exact
+    #: repeats alone are a freeze
+    freeze_noise_mps: float = 0.02
     bias_samples: int = 6
     bias_threshold_mps: float = 0.15
     bias_sigma: float = 5.0
@@ -396,6 +405,11 @@ class AxisMonitor:
     _rearm_rows: int = 0
     _scale: float = 0.0  # s_j of the last test
     var_imu_mps2: float = 0.0  # σ²_imu of the module docstring, set by the detector
+    #: running mean of squared successive residual differences: 2 σ² of the measurement's
+    #: white noise (plus the IMU's over one interval), for the gain of ``full``
+    var_diff_mps2: float = 0.0
+    _r_prev: float = math.nan
+    _a_at_value: float = 0.0  # A_j when the current measured value was first seen
 
     def __post_init__(self) -> None:
         self._var_r = self.cfg.sigma_meas_mps**2
@@ -523,16 +537,33 @@ class AxisMonitor:
                 self.state = AxisState.FAULTY
             return AxisVerdict(False, math.nan, math.inf, self.state)
         self._nan_run = 0
-        repeated = y_mps == self._last_y
+        # freeze: exact repeats of a noisy measurement, or of a quiet one (a noise-free SITL
+        # GPS, a coarse step) while the IMU says the velocity changed: a quiet GPS repeats
+        # its value in a hover, which is a measurement, not a fault. Without a usable
+        # IMU, repeats alone count.
+        same = y_mps == self._last_y
+        if not same:
+            self._a_at_value = a_int_mps
+        noisy = self.var_diff_mps2 > 2.0 * cfg.freeze_noise_mps**2
+        moved = abs(a_int_mps - self._a_at_value) > cfg.freeze_motion_mps
+        repeated = same and (noisy or moved or not self.fit.imu_ok)
         self._repeats = self._repeats + 1 if repeated else 0
         self._last_y = y_mps
         pred, sigma_pred = self.predict(a_int_mps, ints)
         r = y_mps - pred
         if math.isfinite(r):
             self._scale = math.sqrt(self.sigma_r_mps**2 + sigma_pred**2 + self.var_imu_mps2)
+            if math.isfinite(self._r_prev) and self.state is AxisState.OK:
+                d2 = (r - self._r_prev) ** 2
+                if self.var_diff_mps2 == 0.0:
+                    self.var_diff_mps2 = d2
+                else:
+                    cap = 16.0 * self.var_diff_mps2
+                    self.var_diff_mps2 += (min(d2, cap) - self.var_diff_mps2) / cfg.scale_samples
             self._resid.append(r)
             while len(self._resid) > max(cfg.bias_samples, cfg.noise_samples + 1):
                 self._resid.popleft()
+        self._r_prev = r
         bias_ratio, noise_ratio = self._ratios()
         freeze_ratio = self._repeats / cfg.freeze_repeats
         ratio = max(

@@ -56,7 +56,7 @@ import numpy as np
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
 from glmav_observer.estimation.fdi import FaultDetector, FdiConfig, Reference
-from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact
+from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact, gamma_full_optimal
 from glmav_observer.ingest.samples import (
     AidingSample,
     AttitudeSample,
@@ -77,6 +77,8 @@ from glmav_observer.records import (
     VelocityRecord,
 )
 
+#: Measurements between two updates of the gain of ``full`` (~5 s at 25 Hz).
+GAMMA_UPDATE_SAMPLES = 125
 #: The configuration that does not use each NED axis (index 0 n, 1 e, 2 d).
 CONFIG_WITHOUT_AXIS: tuple[str, str, str] = ("c2", "c3", "c1")
 _CONFIG_INDEX = {c: i for i, c in enumerate(CONFIGS)}
@@ -97,6 +99,9 @@ class EstimatorConfig:
     max_gap_s: float = 1.0
     handover_contamination_mps: float = 1.0
     metrics_skip_s: float = 3.0
+    adapt_gamma_full: bool = True
+    gamma_full_min: float = 4.0
+    gamma_full_max: float = 40.0
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
@@ -194,6 +199,7 @@ class VehicleEstimator:
         self._ref_handover: Reference | None = None
         self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
         self._n_accel_changes = 0
+        self._n_meas = 0
         self.t_bank_s: float | None = None
         self.t_first_s: float | None = None
         self._euler: Vec3 | None = None
@@ -374,6 +380,37 @@ class VehicleEstimator:
         if self._missing:
             self._missing = False
         self._after_fdi(t, faulty_before)
+        self._n_meas += 1
+        if self.cfg.adapt_gamma_full and self._n_meas % GAMMA_UPDATE_SAMPLES == 0:
+            self._adapt_gamma_full(imu_hz)
+
+    def _adapt_gamma_full(self, imu_hz: float) -> None:
+        """γ of ``full`` from the noise this vehicle sends (observer.gamma_full_optimal):
+        the measurement's white noise from successive residual differences, the IMU's
+        from the despiker, the bias from the fit (at least 0.05 m/s²). Only while every
+        axis is healthy and armed; a change is limited to ×/÷ 1.5 per update."""
+        axes = self.fdi.axes
+        if self.fdi.faulty_axes() or not self.fdi.armed() or self._y_interval_s <= 0.0:
+            return
+        if imu_hz <= 0.0 or any(a.var_diff_mps2 <= 0.0 for a in axes):
+            return
+        q = self.despike.noise_var_mps2() / imu_hz
+        # E[Δr²] = 2 σ_y² + q Δt_y (the IMU's white noise over one interval)
+        var_y = max(min(a.var_diff_mps2 for a in axes) / 2.0 - q * self._y_interval_s / 2.0, 1e-8)
+        b = max(math.sqrt(sum(x * x for x in self.fdi.fit.bias_body_mps2)), 0.05)
+        cfg = self.cfg
+        target = gamma_full_optimal(
+            math.sqrt(var_y), 1.0 / self._y_interval_s, q, b, cfg.gamma_full_min, cfg.gamma_full_max
+        )
+        now = self.bank.gamma_gain[0]
+        new = min(max(target, now / 1.5), now * 1.5)
+        if abs(new - now) > 0.02 * now:
+            self.bank.set_gamma("full", new)
+            self.counters["gamma_full_updates"] += 1
+
+    @property
+    def gamma_full(self) -> float:
+        return self.bank.gamma_gain[0]
 
     def _ints(self) -> tuple[tuple[float, ...], tuple[float, float, float]]:
         """(B, C): the integrals the FDI's regressors are built from."""

@@ -263,15 +263,15 @@ def test_one_imu_shock_isolates_nothing_and_is_forgotten_within_1_s(f_mps2: floa
     (2000 m/s²). Before the despiker, 1999 m/s² held for 4 ms was an 8 m/s step in the
     FDI's integral: a false bias on every axis that never cleared."""
     est, recs = run(_with_imu_shock(flight(9.0, seed=5), 5.0, f_mps2))
+    _, ref = run(flight(9.0, seed=5))
     assert est.faults == [] and est.switches == []
     assert est.counters["imu_spike_held"] == 1
-    # 1 s later: within 0.1 m/s of truth (healthy error ~0.02, 3 sigma 0.07)
-    err = [
-        max(abs(r.v_ned_mps[i] - _truth(r.t_boot_s)[0][i]) for i in range(3))
-        for r in _active(recs)
-        if r.t_boot_s >= 6.0
-    ]
-    assert max(err) <= 0.1
+    # 1 s later the active estimate is within 0.1 m/s of the run without the shock (issue);
+    # held out, the shock costs one 4 ms hold of the previous sample: ~1e-3 m/s
+    got = {r.t_boot_s: r.v_ned_mps for r in _active(recs) if r.t_boot_s >= 6.0}
+    want = {r.t_boot_s: r.v_ned_mps for r in _active(ref) if r.t_boot_s >= 6.0}
+    assert got.keys() == want.keys()
+    assert max(max(abs(a - b) for a, b in zip(got[t], want[t], strict=True)) for t in got) <= 0.1
 
 
 def test_a_missing_stream_is_not_an_axis_fault() -> None:
