@@ -28,11 +28,8 @@ unobserved heading error into a sudden acceleration is uncertain, and the tests 
 Residual scale from the data. σ_r,j, the spread of vetted residuals of axis j (a running
 mean of r², winsorised at 4σ, over ~``scale_samples`` samples, floored at
 ``sigma_floor_mps``), starts at ``sigma_meas_mps`` and adapts to what the vehicle sends: an
-autopilot's filtered velocity, a vibrating IMU, a slow stream. The IMU's own noise, measured
-on the IMU (σ_f² per axis from successive differences, :mod:`despike`), adds the random walk
-it causes over the prediction horizon h = ``vet_delay_s`` + ``bias_window_s``/2:
-σ²_imu = σ_f² Δt_imu h (a velocity fault cannot raise it). Every test threshold is a
-multiple of s_j = √(σ_r,j² + σ²_pred,j + σ²_imu), never a number tuned on one simulator.
+autopilot's filtered velocity, a vibrating IMU, a slow stream. Every test threshold is a
+multiple of s_j = √(σ_r,j² + σ²_pred,j), never a number tuned on one simulator.
 
 Tests (thresholds in :class:`FdiConfig`):
 
@@ -404,7 +401,6 @@ class AxisMonitor:
     _stepped_back_level: float | None = None
     _rearm_rows: int = 0
     _scale: float = 0.0  # s_j of the last test
-    var_imu_mps2: float = 0.0  # σ²_imu of the module docstring, set by the detector
     #: running mean of squared successive residual differences: 2 σ² of the measurement's
     #: white noise (plus the IMU's over one interval), for the gain of ``full``
     var_diff_mps2: float = 0.0
@@ -552,7 +548,7 @@ class AxisMonitor:
         pred, sigma_pred = self.predict(a_int_mps, ints)
         r = y_mps - pred
         if math.isfinite(r):
-            self._scale = math.sqrt(self.sigma_r_mps**2 + sigma_pred**2 + self.var_imu_mps2)
+            self._scale = math.hypot(self.sigma_r_mps, sigma_pred)
             if math.isfinite(self._r_prev) and self.state is AxisState.OK:
                 d2 = (r - self._r_prev) ** 2
                 if self.var_diff_mps2 == 0.0:
@@ -767,28 +763,21 @@ class FaultDetector:
             AxisMonitor("d", 2, self.cfg, self.fit),
         )
 
-    def update(  # noqa: PLR0917 -- one measurement's inputs, in the vehicle's order
+    def update(
         self,
         t_s: float,
         y_ned_mps: tuple[float, float, float],
         a_int_mps: list[float],
         ints: Integrals,
         imu_rate_hz: float = math.inf,
-        imu_noise_var_mps2: float = 0.0,
     ) -> tuple[AxisVerdict, AxisVerdict, AxisVerdict]:
         """One velocity measurement; the verdict per NED axis.
 
-        ``imu_noise_var_mps2``: σ_f², the IMU's specific-force noise variance per axis.
         Below ``min_imu_rate_hz`` the IMU cannot predict the velocity: the residual tests
         are off and only dropout and freeze are tested.
         """
         cfg = self.cfg
         self.fit.imu_ok = imu_rate_hz >= cfg.min_imu_rate_hz
-        if math.isfinite(imu_rate_hz) and imu_rate_hz > 0:
-            horizon_s = cfg.vet_delay_s + 0.5 * cfg.bias_window_s
-            var_imu = imu_noise_var_mps2 * horizon_s / imu_rate_hz
-            for ax in self.axes:
-                ax.var_imu_mps2 = var_imu
         for ax in self.axes:
             ax.vet(t_s)
         self.fit.frozen_bias = any(ax.fault is not None for ax in self.axes)

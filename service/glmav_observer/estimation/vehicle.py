@@ -361,9 +361,7 @@ class VehicleEstimator:
             return
         faulty_before = set(self.fdi.faulty_axes())
         imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
-        verdicts = self.fdi.update(
-            t, s.v_ned_mps, self._a_int, self._ints(), imu_hz, self.despike.noise_var_mps2()
-        )
+        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, self._ints(), imu_hz)
         if t > self._t_y_s:  # running mean of the measurement interval (time constant 20 samples)
             dt_y = min(t - self._t_y_s, self.cfg.max_gap_s)
             if self._y_interval_s == 0.0:
