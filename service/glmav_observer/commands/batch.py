@@ -93,7 +93,7 @@ class _Collect:
 
 
 def _table(records: list[Any], log_id: str, vehicle: str) -> Any:
-    import pyarrow as pa  # type: ignore[import-untyped]  # no stubs
+    import pyarrow as pa
 
     from glmav_observer.records import flatten
 
