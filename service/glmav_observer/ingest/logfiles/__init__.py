@@ -217,11 +217,10 @@ def _samples(s: LogStreams, velocity_source: VelocitySource, delay_s: float) -> 
 
 
 def _decimate(t: F64, min_step_s: float) -> np.ndarray[tuple[int], np.dtype[np.bool_]]:
-    """Mask keeping the first sample and each sample at least ``min_step_s`` after the last kept."""
-    keep = np.zeros(len(t), dtype=bool)
-    last = -np.inf
-    for i, x in enumerate(t.tolist()):
-        if x - last >= min_step_s - 1e-9:
-            keep[i] = True
-            last = x
+    """Mask keeping the first sample of each ``min_step_s`` bin of time (jitter-proof)."""
+    if len(t) == 0:
+        return np.zeros(0, dtype=bool)
+    bins = np.floor((t - t[0]) / min_step_s)
+    keep = np.ones(len(t), dtype=bool)
+    keep[1:] = bins[1:] != bins[:-1]
     return keep
