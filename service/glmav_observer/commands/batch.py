@@ -52,6 +52,10 @@ FLOAT_COLUMNS = (
 )  # fmt: skip
 
 
+#: Points per line in a report plot (decimated beyond: the PNG is 800 px wide).
+PLOT_MAX_POINTS = 2000
+
+
 def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
         "batch", help="replay many logs: Parquet records, a summary table and an HTML report"
@@ -92,27 +96,28 @@ class _Collect:
         pass
 
 
+def _clean(x: Any) -> Any:
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, list | dict):
+        return json.dumps(x, sort_keys=True, separators=(",", ":"))
+    return x
+
+
 def _table(records: list[Any], log_id: str, vehicle: str) -> Any:
     import pyarrow as pa
 
     from glmav_observer.records import flatten
 
-    cols: dict[str, list[Any]] = {n: [] for n in _schema().names}
+    schema = _schema()
+    wanted = set(schema.names)
+    rows = []
     for r in records:
-        row = flatten(r)
-        for name, values in cols.items():
-            if name == "log_id":
-                values.append(log_id)
-            elif name == "vehicle":
-                values.append(vehicle)
-            else:
-                x = row.get(name)
-                if isinstance(x, list | dict):
-                    x = json.dumps(x, sort_keys=True, separators=(",", ":"))
-                elif isinstance(x, float) and not math.isfinite(x):
-                    x = None
-                values.append(x)
-    return pa.table(cols, schema=_schema())
+        row = {k: _clean(v) for k, v in flatten(r).items() if k in wanted}
+        row["log_id"] = log_id
+        row["vehicle"] = vehicle
+        rows.append(row)
+    return pa.Table.from_pylist(rows, schema=schema)
 
 
 def _fault_windows(
@@ -148,17 +153,35 @@ def _plot_png(
     t0 = min(t_all) if t_all else 0.0
     t_end = max(t_all) if t_all else 0.0
 
-    def series(
-        kind: type, pred: Callable[[Any], bool] = lambda r: True, attr: str = "v_ned_mps"
-    ) -> tuple[list[float], list[list[float]]]:
-        rs: list[Any] = [r for r in records if isinstance(r, kind) and pred(r)]
-        return [r.t_boot_s - t0 for r in rs], [list(getattr(r, attr)) for r in rs]
+    groups: dict[str, tuple[list[float], list[Any]]] = {
+        k: ([], []) for k in ("active", "meas", "ref", "truth", "resid")
+    }
+    for r in records:
+        if isinstance(r, VelocityRecord):
+            if r.config != "active":
+                continue
+            key, v = "active", r.v_ned_mps
+        elif isinstance(r, MeasurementRecord):
+            key, v = "meas", r.v_ned_mps
+        elif isinstance(r, ReferenceRecord):
+            key, v = "ref", r.v_ned_mps
+        elif isinstance(r, TruthRecord):
+            key, v = "truth", r.v_ned_mps
+        elif isinstance(r, HealthRecord):
+            key, v = "resid", r.residual_ned_mps
+        else:
+            continue
+        groups[key][0].append(r.t_boot_s - t0)
+        groups[key][1].append(v)
 
-    active = series(VelocityRecord, lambda r: r.config == "active")
-    meas = series(MeasurementRecord)
-    ref = series(ReferenceRecord)
-    truth = series(TruthRecord)
-    resid = series(HealthRecord, attr="residual_ned_mps")
+    def series(key: str) -> tuple[list[float], list[Any]]:
+        t, v = groups[key]
+        step = max(1, len(t) // PLOT_MAX_POINTS)  # a page needs no more points than pixels
+        return t[::step], v[::step]
+
+    active, meas, ref, truth, resid = (
+        series(k) for k in ("active", "meas", "ref", "truth", "resid")
+    )
     fig, axes = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
     for k, name in enumerate(("north", "east", "down")):
         ax = axes[k]
