@@ -389,6 +389,8 @@ class LogReplaySummary:
     #: per configuration (and ``active``): RMSE against the EKF velocity, m/s (n, e, d)
     rmse_vs_reference_ned_mps: dict[str, tuple[float, float, float] | None]
     reference_samples: int
+    #: the log's first time stamp (s, autopilot clock)
+    t_start_s: float = 0.0
 
     @property
     def vehicle_summary(self) -> VehicleSummary | None:
@@ -433,10 +435,12 @@ class LogReplaySummary:
             for f in v.faults:
                 lines.append(
                     f"fault isolated: axis {f['axis']} ({f['kind']}) at t = {f['t_detect_s']:.3f} s"
+                    f" ({f['t_detect_s'] - self.t_start_s:.1f} s into the log)"
                 )
             for sw in v.switches:
                 lines.append(
-                    f"switch: {sw['from']} -> {sw['to']} at t = {sw['t_boot_s']:.3f} s ({sw['reason']})"
+                    f"switch: {sw['from']} -> {sw['to']} at t = {sw['t_boot_s']:.3f} s"
+                    f" ({sw['t_boot_s'] - self.t_start_s:.1f} s into the log, {sw['reason']})"
                 )
             lines.append(f"active configuration at the end: {v.active_config}")
         return "\n".join(lines)
@@ -528,6 +532,7 @@ def replay_flight_log(
         service=service.summary(),
         rmse_vs_reference_ned_mps={c: st.rmse() for c, st in ref_err.items()},
         reference_samples=ref_err["full"].n,
+        t_start_s=log.streams.span_s()[0],
     )
 
 

@@ -134,8 +134,13 @@ def _fault_windows(
 
 
 def _plot_png(
-    records: list[Any], faults: list[dict[str, Any]], switches: list[dict[str, Any]], title: str
+    records: list[Any],
+    faults: list[dict[str, Any]],
+    switches: list[dict[str, Any]],
+    title: str,
+    t0: float,
 ) -> bytes:
+    """Velocity (n, e, d) and residuals against time into the log (``t0``: its start), PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -149,9 +154,7 @@ def _plot_png(
         VelocityRecord,
     )
 
-    t_all = [r.t_boot_s for r in records]
-    t0 = min(t_all) if t_all else 0.0
-    t_end = max(t_all) if t_all else 0.0
+    t_end = max((r.t_boot_s for r in records), default=t0)
 
     groups: dict[str, tuple[list[float], list[Any]]] = {
         k: ([], []) for k in ("active", "meas", "ref", "truth", "resid")
@@ -223,12 +226,21 @@ def _plot_png(
             transform=axes[3].transAxes, ha="center", va="center", color="0.4",
         )  # fmt: skip
     axes[3].set_ylabel("residual (m/s)")
-    axes[3].set_xlabel(f"time since the log's first record (s; vehicle clock {t0:.1f} s)")
-    for a0, a1, label in _fault_windows(faults, switches, t_end):
+    axes[3].set_xlabel(f"time into the log (s; it starts at {t0:.1f} s of the autopilot's clock)")
+    windows = _fault_windows(faults, switches, t_end)
+    for a0, a1 in sorted({(a0, a1) for a0, a1, _ in windows}):  # one band per window
         for ax in axes:
-            ax.axvspan(a0 - t0, a1 - t0, color="tab:red", alpha=0.15)
-        axes[0].text(
-            a0 - t0, axes[0].get_ylim()[1], f" fault {label}", va="top", fontsize=8, color="tab:red"
+            ax.axvspan(a0 - t0, a1 - t0, color="tab:red", alpha=0.12, lw=0)
+    if windows:
+        from matplotlib.patches import Patch
+
+        labels = ", ".join(sorted({w[2] for w in windows}))
+        axes[0].add_artist(
+            axes[0].legend(
+                handles=[Patch(color="tab:red", alpha=0.25, label=f"isolated fault ({labels})")],
+                loc="lower right",
+                fontsize=8,
+            )
         )
     axes[0].legend(loc="upper left", fontsize=8, ncol=4)
     axes[0].set_title(title)
@@ -237,6 +249,15 @@ def _plot_png(
     fig.savefig(buf, format="png", dpi=80, metadata={"Software": None})
     plt.close(fig)
     return buf.getvalue()
+
+
+def _fault_text(faults: list[dict[str, Any]], t_start: float) -> str:
+    """``n, e, d freeze at 0.81 s; d bias at 27.60 s``: axes isolated together are grouped."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for f in faults:
+        key = (f["kind"], f"{f['t_detect_s'] - t_start:.2f}")
+        groups.setdefault(key, []).append(f["axis"])
+    return "; ".join(f"{', '.join(ax)} {kind} at {t} s" for (kind, t), ax in groups.items())
 
 
 def _rmse_row(prefix: str, r: tuple[float, float, float] | None) -> dict[str, float | None]:
@@ -262,12 +283,14 @@ def process_log(
         row["format"] = fmt
         if fmt == "tlog":
             s = replay_tlog(path, config, [sink])
+            t_start = min((r.t_boot_s for r in sink.records), default=0.0)
             v = next(iter(s.vehicles.values()), None)
             row.update(vehicle="MAVLink", duration_s=None)
             rmse = v.rmse_ned_mps.get("active") if v is not None else None
             row.update(rmse_basis="truth" if rmse else None, **_rmse_row("rmse_active", rmse))
         else:
             fl = replay_flight_log(path, config, [sink], velocity_source=velocity_source)
+            t_start = fl.t_start_s
             v = fl.vehicle_summary
             row.update(
                 vehicle=fl.vehicle,
@@ -284,15 +307,14 @@ def process_log(
             row.update(_rmse_row("rmse_active_vs_reference", ref))
         faults = v.faults if v is not None else []
         switches = v.switches if v is not None else []
-        t0 = min((r.t_boot_s for r in sink.records), default=0.0)
-        # fault times in s after the log's first record (a SITL PX4 clock reads ~1.7e9 s)
-        row["faults"] = "; ".join(
-            f"{f['axis']} {f['kind']} at +{f['t_detect_s'] - t0:.2f} s" for f in faults
-        )
+        # fault times in s into the log, as replay prints them (a SITL PX4 clock reads ~1.7e9 s)
+        row["faults"] = _fault_text(faults, t_start)
         row["switches"] = len(switches)
         row["records"] = len(sink.records)
         table = _table(sink.records, log_id, str(row.get("vehicle", "")))
-        png = _plot_png(sink.records, faults, switches, f"{log_id}: {row.get('vehicle', '')}")
+        png = _plot_png(
+            sink.records, faults, switches, f"{log_id}: {row.get('vehicle', '')}", t_start
+        )
         return {"row": row, "table": table, "png": png}
     except (LogError, ConfigError, OSError, ValueError) as err:
         row["error"] = str(err)
@@ -302,15 +324,30 @@ def process_log(
 
 
 # ---------------------------------------------------------------------- the batch
-def expand_paths(paths: Iterable[str]) -> list[Path]:
-    """Files as given, folders searched recursively (hidden files skipped), in sorted order."""
+def expand_paths(paths: Iterable[str]) -> tuple[list[Path], int]:
+    """Files as given, and in folders (recursively) the files whose content is a log.
+
+    A file named on the command line is always replayed (and reported if it is not a log);
+    in a folder, other files (READMEs, licences) are skipped and counted.
+    """
+    from glmav_observer.ingest.logfiles import LogError, detect_format
+
     out: list[Path] = []
+    skipped = 0
     for p in map(Path, paths):
-        if p.is_dir():
-            out += sorted(f for f in p.rglob("*") if f.is_file() and not f.name.startswith("."))
-        else:
+        if not p.is_dir():
             out.append(p)
-    return out
+            continue
+        for f in sorted(p.rglob("*")):
+            if not f.is_file() or f.name.startswith("."):
+                continue
+            try:
+                detect_format(f)
+            except LogError:
+                skipped += 1
+                continue
+            out.append(f)
+    return out, skipped
 
 
 def log_ids(files: list[Path]) -> list[str]:
@@ -390,21 +427,50 @@ def write_outputs(results: list[dict[str, Any]], out: Path) -> None:
         for row in rows:
             w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
     (out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8")
-    (out / "report.html").write_text(_html(results, columns), encoding="utf-8")
+    (out / "report.html").write_text(_html(results), encoding="utf-8")
 
 
-def _html(results: list[dict[str, Any]], columns: list[str]) -> str:
+def _fmt(x: Any, nd: int = 3) -> str:
+    if x is None or x == "":
+        return ""
+    if isinstance(x, float):
+        return f"{x:.{nd}f}"
+    return str(x)
+
+
+def _html(results: list[dict[str, Any]]) -> str:
+    """The report: a compact table (every column is in summary.csv) and a plot per log."""
     esc = html.escape
-    shown = [c for c in columns if c != "path"]
-    head = "".join(f"<th>{esc(c)}</th>" for c in shown)
+    head = (
+        "<th>log</th><th>format</th><th>vehicle</th><th>duration (s)</th>"
+        "<th>rates (Hz): att. / IMU / GPS / EKF / truth</th><th>velocity, GPS delay</th>"
+        "<th>faults isolated (s into the log)</th><th>switches</th>"
+        "<th>RMSE n / e / d (m/s), against</th>"
+    )
     body = []
     for r in results:
         row = r["row"]
-        cls = ' class="error"' if row.get("error") else ""
-        cells = "".join(
-            f"<td>{esc('' if row.get(c) is None else str(row.get(c)))}</td>" for c in shown
+        log = f"<a href='#{esc(row['log_id'])}'>{esc(row['log_id'])}</a>"
+        if row.get("error"):
+            body.append(
+                f"<tr class='error'><td>{log}</td><td>{esc(_fmt(row.get('format')))}</td>"
+                f"<td colspan='7' class='text'>{esc(str(row['error']))}</td></tr>"
+            )
+            continue
+        rates = " / ".join(_fmt(row.get(f"rate_{k}_hz"), 1) or "-" for k in
+                           ("attitude", "imu", "gps", "ekf", "truth"))  # fmt: skip
+        src = str(row.get("velocity_source") or "")
+        if src == "gps":
+            src += f", {_fmt(row.get('gps_delay_ms'), 0)} ms ({row.get('gps_delay_source')})"
+        rmse = " / ".join(_fmt(row.get(f"rmse_active_{a}")) for a in "ned")
+        body.append(
+            f"<tr><td>{log}</td><td>{esc(_fmt(row.get('format')))}</td>"
+            f"<td>{esc(_fmt(row.get('vehicle')))}</td><td>{_fmt(row.get('duration_s'), 1)}</td>"
+            f"<td>{esc(rates)}</td><td>{esc(src)}</td>"
+            f"<td class='text'>{esc(row.get('faults') or 'none')}</td>"
+            f"<td>{_fmt(row.get('switches'))}</td>"
+            f"<td>{esc(rmse)}, {esc(_fmt(row.get('rmse_basis')))}</td></tr>"
         )
-        body.append(f"<tr{cls}>{cells}</tr>")
     n_err = sum(1 for r in results if r["row"].get("error"))
     plots = []
     for r in results:
@@ -424,15 +490,17 @@ def _html(results: list[dict[str, Any]], columns: list[str]) -> str:
 <html lang="en"><head><meta charset="utf-8"><title>glmav-observer batch report</title>
 <style>
 body {{ font-family: sans-serif; margin: 1.5em; }}
-table {{ border-collapse: collapse; font-size: 0.8em; }}
-th, td {{ border: 1px solid #bbb; padding: 2px 6px; text-align: right; }}
+table {{ border-collapse: collapse; font-size: 0.75em; }}
+th, td {{ border: 1px solid #bbb; padding: 2px 6px; text-align: left; white-space: nowrap; }}
+th, td.text {{ white-space: normal; }}
+td.text {{ min-width: 12em; max-width: 24em; }}
 tr.error td, p.error {{ color: #b00; }}
 img {{ max-width: 100%; }}
 </style></head><body>
 <h1>glmav-observer batch report</h1>
 <p>{len(results)} logs, {n_err} not replayed. RMSE in m/s of the active estimate against
 truth where the log has it (rmse_basis = truth), else against the autopilot's EKF velocity.
-Red bands: isolated faults.</p>
+Red bands: isolated faults. Every column is in summary.csv.</p>
 <table><tr>{head}</tr>
 {chr(10).join(body)}
 </table>
@@ -444,7 +512,7 @@ Red bands: isolated faults.</p>
 def main(args: argparse.Namespace) -> int:
     from glmav_observer.config import ConfigError, load_config
 
-    files = expand_paths(args.paths)
+    files, skipped = expand_paths(args.paths)
     missing = [f for f in files if not f.is_file()]
     if missing:
         print(f"glmav-observer batch: {missing[0]}: no such file", file=sys.stderr)
@@ -479,6 +547,8 @@ def main(args: argparse.Namespace) -> int:
         return 2
     n_err = sum(1 for r in rows if r.get("error"))
     print(f"{len(rows)} logs, {n_err} not replayed; wrote {out}/records/, summary.csv, report.html")
+    if skipped:
+        print(f"skipped {skipped} files in the folders given that are not logs")
     for r in rows:
         state = (
             f"ERROR {r['error']}"

@@ -24,6 +24,7 @@ def batch_inputs(public_logs: dict[str, Path], tmp_path: Path) -> Path:
     (logs / "px4.ulg").write_bytes(public_logs["ulog"].read_bytes())
     # a dataflash log cut after its format messages: recognised, but no data to replay
     (logs / "corrupt.BIN").write_bytes(public_logs["dataflash"].read_bytes()[:3000])
+    (logs / "README.md").write_text("flight campaign notes: not a log, skipped in a folder\n")
     return logs
 
 
@@ -38,6 +39,7 @@ def test_process_pool_and_dask_cluster_give_the_same_dataset(
     assert code == 0
     printed = capsys.readouterr()
     assert "3 logs, 1 not replayed" in printed.out
+    assert "skipped 1 files in the folders given that are not logs" in printed.out
     assert "3/3 logs" in printed.err  # the progress bar reached the end
 
     with (pool_out / "summary.csv").open() as f:
@@ -74,7 +76,7 @@ def test_process_pool_and_dask_cluster_give_the_same_dataset(
     ) as cluster:
         dask_out = tmp_path / "dask"
         run_batch(
-            sorted(batch_inputs.iterdir()),
+            sorted(f for f in batch_inputs.iterdir() if f.suffix != ".md"),
             dask_out,
             velocity_source="ekf",
             cluster=cluster.scheduler_address,
