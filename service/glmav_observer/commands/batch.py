@@ -520,6 +520,17 @@ def main(args: argparse.Namespace) -> int:
     if not files:
         print("glmav-observer batch: no log files under the paths given", file=sys.stderr)
         return 2
+    import importlib.util
+
+    needed = ["matplotlib"] + (["distributed"] if args.cluster else [])
+    absent = [m for m in needed if importlib.util.find_spec(m) is None]
+    if absent:
+        print(
+            f"glmav-observer batch: {', '.join(absent)} not installed: "
+            "pip install 'glmav-observer[batch]'",
+            file=sys.stderr,
+        )
+        return 2
     try:
         load_config(args.config)
     except ConfigError as err:
