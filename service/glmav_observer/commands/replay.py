@@ -76,12 +76,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"glmav-observer replay: {log}: no such file", file=sys.stderr)
         return 2
     try:
-        fmt = detect_format(log)
-    except LogError as err:
-        print(f"glmav-observer replay: {err}", file=sys.stderr)
-        return 2
-    try:
         config = load_config(args.config)
+        fmt = detect_format(log)
         sinks = open_sinks(
             config,
             out=args.out or "",
@@ -89,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
             rerun_mode=f"save:{args.rrd}" if args.rrd else "off",
             recording_name=log.name,
         )
-    except (ConfigError, FileSinkError, OSError, ValueError) as err:
+    except (ConfigError, LogError, FileSinkError, OSError, ValueError) as err:
         print(f"glmav-observer replay: {err}", file=sys.stderr)
         return 2
     show = not args.no_progress and log.stat().st_size >= PROGRESS_MIN_BYTES

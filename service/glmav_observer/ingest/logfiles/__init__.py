@@ -7,7 +7,7 @@
   message's type 0x80;
 - ``dataflash-text``: ArduPilot's text dump (``.log``), a first line ``FMT, ...``;
 - ``tlog``: MAVLink telemetry log, an 8-byte time stamp then a MAVLink 1 (0xFE) or 2
-  (0xFD) frame.
+  (0xFD) frame; an empty file is an empty ``tlog``.
 
 :func:`read_flight_log` reads a ULog or dataflash log into a :class:`FlightLog`: the samples
 of :mod:`glmav_observer.ingest.samples` in the order the estimator takes them, the
@@ -78,6 +78,8 @@ def detect_format(path: str | Path) -> LogFormat:
             head = f.read(64)
     except OSError as err:
         raise LogError(f"{path}: cannot read ({err.strerror})") from err
+    if not head:
+        return "tlog"  # an empty file: a telemetry log that recorded nothing (replays 0 messages)
     if head.startswith(ULOG_MAGIC):
         return "ulog"
     if head.startswith(DATAFLASH_MAGIC):

@@ -45,6 +45,9 @@ def test_format_is_recognised_by_content_not_by_name(
     assert detect_format(ulg_as_bin) == "ulog"
     assert detect_format(tlog) == "tlog"
     assert detect_format(text) == "dataflash-text"
+    empty = tmp_path / "empty.bin"
+    empty.write_bytes(b"")
+    assert detect_format(empty) == "tlog"  # a telemetry log that recorded nothing
     junk = tmp_path / "junk.bin"
     junk.write_bytes(b"not a log at all\n")
     with pytest.raises(LogError, match=r"junk\.bin: not a log this reads"):
