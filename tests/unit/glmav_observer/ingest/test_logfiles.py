@@ -189,3 +189,41 @@ def test_a_log_without_the_needed_messages_is_a_log_error(
     cut.write_bytes(public_logs["ulog"].read_bytes()[:200])
     with pytest.raises(LogError, match=r"cut\.ulg"):
         read_flight_log(cut)
+
+
+def _dataflash_as_text(src: Path, dst: Path, t_end_us: float) -> None:
+    """ArduPilot's text dump (``.log``: ``FMT, ...`` lines, then ``NAME, v1, v2, ...``) of
+    the messages the reader uses, up to ``t_end_us``, written from the binary log."""
+    from pymavlink import DFReader
+
+    reader = DFReader.DFReader_binary(str(src), zero_time_base=False)
+    lines: list[str] = []
+    seen: set[str] = set()
+    while (
+        m := reader.recv_match(type=["ATT", "IMU", "GPS", "XKF1", "PARM", "MSG", "SIM2"])
+    ) is not None:
+        if m.TimeUS > t_end_us:
+            break
+        f = m.fmt
+        if f.name not in seen:
+            lines.append(f"FMT, {f.type}, {f.len}, {f.name}, {f.format}, {','.join(f.columns)}")
+            seen.add(f.name)
+        lines.append(f"{f.name}, " + ", ".join(str(getattr(m, c)) for c in f.columns))
+    dst.write_text("\n".join(lines) + "\n")
+
+
+def test_dataflash_text_log_gives_the_same_streams_as_the_binary(
+    public_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    text = tmp_path / "flight.log"
+    _dataflash_as_text(public_logs["dataflash"], text, t_end_us=215e6)  # the first 17 s
+    fmt, t = read_streams(text)
+    assert fmt == "dataflash-text" and t.vehicle == "ArduCopter V4.6.0-dev"
+    _, b = read_streams(public_logs["dataflash"])
+    for name in ("t_imu_s", "f_body_mps2", "t_att_s", "euler_rad", "t_gps_s", "v_gps_ned_mps",
+                 "t_ekf_s", "v_ekf_ned_mps"):  # fmt: skip
+        a_text = getattr(t, name)
+        a_bin = getattr(b, name)[: len(a_text)]
+        assert len(a_text) > 80, name  # GPS at 5 Hz over 17 s: 86 samples
+        # the text holds Python's shortest repr of each float32 value: exact round trip
+        assert np.array_equal(a_text, a_bin), name
