@@ -38,3 +38,24 @@ def real_tlogs() -> Path:
     if not path.is_dir():
         raise FileNotFoundError(f"{path} missing: CI must place ../shared beside the repo")
     return path
+
+
+PUBLIC_LOGS = REPO_ROOT / "tests" / "data" / "public-logs"
+
+
+@pytest.fixture(scope="session")
+def public_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The trimmed public flight logs (tests/data/public-logs/README.md), decompressed once:
+    ``{"dataflash": ....BIN, "ulog": ....ulg}``."""
+    import gzip
+
+    out = tmp_path_factory.mktemp("public-logs")
+    paths = {}
+    for key, name in (
+        ("dataflash", "arducopter_sitl_trimmed.BIN"),
+        ("ulog", "px4_sitl_trimmed.ulg"),
+    ):
+        dst = out / name
+        dst.write_bytes(gzip.decompress((PUBLIC_LOGS / f"{name}.gz").read_bytes()))
+        paths[key] = dst
+    return paths

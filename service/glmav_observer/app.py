@@ -9,6 +9,9 @@ In-process API (used by the commands, the demo, the benchmarks and the tests):
 - :func:`replay_tlog` ``(path, config, sinks) -> ServiceSummary``: the same pipeline
   over a recorded ``.tlog``, deterministic (the vehicle's clock drives estimation; host
   time stamps of the log are used only for vehicle eviction).
+- :func:`replay_flight_log` ``(path, config, sinks) -> LogReplaySummary``: the same
+  estimator over an ArduPilot dataflash or PX4 ULog (:mod:`glmav_observer.ingest.logfiles`),
+  with the autopilot's EKF velocity published as ``reference`` records and RMSE against it.
 - :func:`open_sinks`: the sinks a configuration asks for (file, Zenoh, Rerun); the
   Zenoh and Rerun modules are imported only when enabled.
 """
@@ -365,6 +368,172 @@ def replay_tlog(
     finally:
         service.close()
     return service.summary()
+
+
+# ---------------------------------------------------------------------- flight logs
+@dataclass
+class LogReplaySummary:
+    """What a flight-log replay found and produced (printed by ``replay``, tabled by ``batch``)."""
+
+    path: str
+    format: str
+    vehicle: str
+    duration_s: float
+    rates_hz: dict[str, float]
+    sources: dict[str, str]
+    dropped: dict[str, int]
+    velocity_source: str
+    gps_delay_s: float
+    gps_delay_source: str
+    service: ServiceSummary
+    #: per configuration (and ``active``): RMSE against the EKF velocity, m/s (n, e, d)
+    rmse_vs_reference_ned_mps: dict[str, tuple[float, float, float] | None]
+    reference_samples: int
+    #: the log's first time stamp (s, autopilot clock)
+    t_start_s: float = 0.0
+
+    @property
+    def vehicle_summary(self) -> VehicleSummary | None:
+        return next(iter(self.service.vehicles.values()), None)
+
+    def to_text(self) -> str:
+        rates = ", ".join(
+            f"{k} {v:.1f} Hz ({self.sources.get(k, '?')})" for k, v in self.rates_hz.items()
+        )
+        lines = [
+            f"{self.format} log: {self.vehicle}, {self.duration_s:.1f} s",
+            f"rates: {rates}",
+            f"velocity measurement: {self.velocity_source}"
+            + (
+                f", GPS delay {self.gps_delay_s * 1e3:.0f} ms ({self.gps_delay_source})"
+                if self.velocity_source == "gps"
+                else ""
+            ),
+            f"samples {self.service.messages}, records {self.service.records}, "
+            f"dropped while reading: {self.dropped or 'none'}",
+        ]
+        v = self.vehicle_summary
+        tables = []
+        if v is not None and v.truth_samples:
+            tables.append((f"simulator truth ({self.sources.get('truth', '?')})", v.rmse_ned_mps))
+        if self.reference_samples:
+            tables.append(
+                (
+                    f"the EKF's velocity ({self.sources.get('ekf', '?')})",
+                    self.rmse_vs_reference_ned_mps,
+                )
+            )
+        if not tables:
+            lines.append("no truth and no reference: no RMSE")
+        for title, table in tables:
+            lines.append(f"RMSE against {title}, m/s, NED")
+            lines.append("config      north     east     down")
+            for cfg, r in table.items():
+                if r is not None:
+                    lines.append(f"{cfg:<7} {r[0]:8.3f} {r[1]:8.3f} {r[2]:8.3f}")
+        if v is not None:
+            for f in v.faults:
+                lines.append(
+                    f"fault isolated: axis {f['axis']} ({f['kind']}) at t = {f['t_detect_s']:.3f} s"
+                    f" ({f['t_detect_s'] - self.t_start_s:.1f} s into the log)"
+                )
+            for sw in v.switches:
+                lines.append(
+                    f"switch: {sw['from']} -> {sw['to']} at t = {sw['t_boot_s']:.3f} s"
+                    f" ({sw['t_boot_s'] - self.t_start_s:.1f} s into the log, {sw['reason']})"
+                )
+            lines.append(f"active configuration at the end: {v.active_config}")
+        return "\n".join(lines)
+
+
+def replay_flight_log(
+    path: str | Path,
+    config: ServiceConfig,
+    sinks: Sequence[Sink] = (),
+    *,
+    velocity_source: str = "gps",
+    gps_delay_s: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> LogReplaySummary:
+    """Run the estimator over an ArduPilot dataflash or PX4 ULog; sinks are closed at the end.
+
+    Raises :class:`~glmav_observer.ingest.logfiles.LogError` for a log it cannot read (the
+    sinks are closed then too). Deterministic: the samples are sorted by time of validity.
+    """
+    from glmav_observer.estimation.vehicle import ErrorStats
+    from glmav_observer.ingest.logfiles import LOG_SYSID, VELOCITY_SOURCES, read_flight_log
+    from glmav_observer.ingest.rates import RateMonitor
+    from glmav_observer.ingest.samples import TruthSample
+    from glmav_observer.records import ReferenceRecord, VelocityRecord
+
+    service = Service(config, sinks)
+    try:
+        if velocity_source not in VELOCITY_SOURCES:
+            raise ValueError(f"velocity source must be gps or ekf, got {velocity_source!r}")
+        log = read_flight_log(path, velocity_source, gps_delay_s=gps_delay_s)  # type: ignore[arg-type]
+        sysid = LOG_SYSID
+        counters: collections.Counter[str] = collections.Counter()
+        monitor = RateMonitor({}, config.ingest.rate_window_s)
+        est = VehicleEstimator(sysid, config.estimation, counters, monitor.rates)
+        service.estimators[sysid] = est
+        ref_source = log.streams.sources.get("ekf", "ekf")
+        t_ref = log.t_reference_s.tolist()
+        v_ref = log.v_reference_ned_mps.tolist()
+        ref_err = {c: ErrorStats() for c in (*CONFIGS, "active")}
+        latest: dict[str, tuple[float, float, float]] = {}
+        skip_s = config.estimation.metrics_skip_s
+        names = {"AttitudeSample": "attitude", "ImuSample": "imu", "VelocitySample": "velocity"}
+        n = len(log.samples)
+        step = max(1, n // 200)
+        i_ref = 0
+
+        def references_until(t: float) -> None:
+            nonlocal i_ref
+            out: list[Record] = []
+            while i_ref < len(t_ref) and t_ref[i_ref] <= t:
+                tr, vr = t_ref[i_ref], v_ref[i_ref]
+                out.append(ReferenceRecord(sysid, tr, (vr[0], vr[1], vr[2]), ref_source, i_ref + 1))
+                if latest and est.t_first_s is not None and tr >= est.t_first_s + skip_s:
+                    for c, ve in latest.items():
+                        ref_err[c].add((ve[0] - vr[0], ve[1] - vr[1], ve[2] - vr[2]))
+                i_ref += 1
+            if out:
+                service._publish(out)
+
+        for k, smp in enumerate(log.samples):
+            references_until(smp.t_boot_s)
+            service.messages += 1
+            if not isinstance(smp, TruthSample):
+                monitor.note(names[type(smp).__name__], smp.t_boot_s)
+            recs = est.on_sample(smp)
+            for r in recs:
+                if isinstance(r, VelocityRecord):
+                    latest[r.config] = r.v_ned_mps
+            if recs:
+                service._publish(recs)
+            if progress is not None and k % step == 0:
+                progress(k, n)
+        references_until(float("inf"))
+        if progress is not None:
+            progress(n, n)
+    finally:
+        service.close()
+    return LogReplaySummary(
+        path=str(path),
+        format=log.format,
+        vehicle=log.vehicle,
+        duration_s=log.duration_s(),
+        rates_hz=log.streams.rates_hz(),
+        sources=dict(log.streams.sources),
+        dropped=dict(log.streams.dropped),
+        velocity_source=log.velocity_source,
+        gps_delay_s=log.gps_delay_s,
+        gps_delay_source=log.gps_delay_source,
+        service=service.summary(),
+        rmse_vs_reference_ned_mps={c: st.rmse() for c, st in ref_err.items()},
+        reference_samples=ref_err["full"].n,
+        t_start_s=log.streams.span_s()[0],
+    )
 
 
 # ---------------------------------------------------------------------- sinks

@@ -17,7 +17,7 @@ from glmav_observer import __version__
 from glmav_observer.logs import configure_logging
 
 #: Subcommand modules, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("demo", "check", "echo", "router", "serve", "replay")
+COMMANDS: tuple[str, ...] = ("demo", "check", "echo", "router", "serve", "replay", "batch")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -25,6 +25,7 @@ VELOCITY_SCHEMA = "glmav.velocity/1"
 HEALTH_SCHEMA = "glmav.health/1"
 TRUTH_SCHEMA = "glmav.truth/1"
 MEASUREMENT_SCHEMA = "glmav.measurement/1"
+REFERENCE_SCHEMA = "glmav.reference/1"
 
 AxisName = Literal["n", "e", "d"]
 Vec3 = tuple[float, float, float]
@@ -196,7 +197,34 @@ class MeasurementRecord:
         }
 
 
-Record = VelocityRecord | HealthRecord | TruthRecord | MeasurementRecord
+@dataclass(frozen=True, slots=True)
+class ReferenceRecord:
+    """The autopilot's own estimate of the velocity (its EKF), from a flight log.
+
+    Not a measurement (the EKF has fused the IMU already) and not truth: what the observer
+    is compared with when a log has no simulator truth. ``source`` names the log's
+    message or topic (``XKF1 core 0``, ``vehicle_local_position``).
+    """
+
+    sysid: int
+    t_boot_s: float
+    v_ned_mps: Vec3
+    source: str
+    seq: int
+    schema: str = field(default=REFERENCE_SCHEMA)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": self.schema,
+            "sysid": self.sysid,
+            "t_boot_s": self.t_boot_s,
+            "v_ned_mps": _vec(self.v_ned_mps),
+            "source": self.source,
+            "seq": self.seq,
+        }
+
+
+Record = VelocityRecord | HealthRecord | TruthRecord | MeasurementRecord | ReferenceRecord
 
 
 def flatten(record: Record) -> dict[str, Any]:

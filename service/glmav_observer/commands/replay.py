@@ -1,4 +1,9 @@
-"""``glmav-observer replay LOG.tlog``: the service's pipeline over a recorded log.
+"""``glmav-observer replay LOG``: the service's pipeline over a recorded log.
+
+The log is recognised by its content (:func:`glmav_observer.ingest.logfiles.detect_format`):
+a MAVLink ``.tlog`` goes through MAVLink ingest; an ArduPilot dataflash (``.bin``/``.log``)
+or PX4 ULog (``.ulg``) is read into the same samples (``--velocity-source gps|ekf``, GPS
+delay from the log's parameters or estimated, ``--gps-delay S`` to impose one).
 
 Deterministic (the vehicle's clock drives everything; two runs give byte-identical
 ``--out`` files), with a progress bar on stderr for long logs and a summary on stdout:
@@ -19,13 +24,26 @@ PROGRESS_MIN_BYTES = 2_000_000
 
 def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
-        "replay", help="run the estimator over a .tlog (deterministic)"
+        "replay", help="run the estimator over a .tlog, dataflash .bin/.log or .ulg (deterministic)"
     )
-    p.add_argument("log", metavar="LOG.tlog")
+    p.add_argument("log", metavar="LOG", help=".tlog, ArduPilot .bin/.log or PX4 .ulg")
     p.add_argument("--out", default=None, metavar="PATH", help="write records to .csv or .jsonl")
     p.add_argument("--rrd", default=None, metavar="PATH", help="save a Rerun recording")
     p.add_argument("--config", default=None, help="service.toml (default: built-in defaults)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--velocity-source",
+        choices=("gps", "ekf"),
+        default="gps",
+        help="flight logs: the velocity measurement (default gps; ekf = the autopilot's EKF)",
+    )
+    p.add_argument(
+        "--gps-delay",
+        type=float,
+        default=None,
+        metavar="S",
+        help="flight logs: the GPS velocity's latency in s (default: from the log's parameters, else estimated)",
+    )
     p.set_defaults(func=main)
 
 
@@ -48,8 +66,9 @@ class _Progress:
 def main(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from glmav_observer.app import open_sinks, replay_tlog
+    from glmav_observer.app import open_sinks, replay_flight_log, replay_tlog
     from glmav_observer.config import ConfigError, load_config
+    from glmav_observer.ingest.logfiles import LogError, detect_format
     from glmav_observer.publish.file_sink import FileSinkError
 
     log = Path(args.log)
@@ -58,6 +77,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     try:
         config = load_config(args.config)
+        fmt = detect_format(log)
         sinks = open_sinks(
             config,
             out=args.out or "",
@@ -65,10 +85,25 @@ def main(args: argparse.Namespace) -> int:
             rerun_mode=f"save:{args.rrd}" if args.rrd else "off",
             recording_name=log.name,
         )
-    except (ConfigError, FileSinkError, OSError, ValueError) as err:
+    except (ConfigError, LogError, FileSinkError, OSError, ValueError) as err:
         print(f"glmav-observer replay: {err}", file=sys.stderr)
         return 2
     show = not args.no_progress and log.stat().st_size >= PROGRESS_MIN_BYTES
+    if fmt != "tlog":
+        try:
+            flight = replay_flight_log(
+                log,
+                config,
+                sinks,
+                velocity_source=args.velocity_source,
+                gps_delay_s=args.gps_delay,
+                progress=_Progress() if show else None,
+            )
+        except LogError as err:
+            print(f"glmav-observer replay: {err}", file=sys.stderr)
+            return 2
+        print(flight.to_text())
+        return 0
     summary = replay_tlog(log, config, sinks, progress=_Progress() if show else None)
     print(summary.to_text())
     return 0

@@ -22,6 +22,7 @@ from glmav_observer.records import (
     CONFIGS,
     HEALTH_SCHEMA,
     MEASUREMENT_SCHEMA,
+    REFERENCE_SCHEMA,
     TRUTH_SCHEMA,
     VELOCITY_SCHEMA,
 )
@@ -132,6 +133,17 @@ TRUTH: Schema = _object(
     }
 )
 
+REFERENCE: Schema = _object(
+    {
+        "schema": {"const": REFERENCE_SCHEMA},
+        "sysid": _SYSID,
+        "t_boot_s": _TIME,
+        "v_ned_mps": _VEC3,
+        "source": {"type": "string"},
+        "seq": _SEQ,
+    }
+)
+
 #: The reply of the ``<prefix>/<sysid>/state`` queryable: the latest record of each kind.
 STATE: Schema = _object(
     {
@@ -166,6 +178,7 @@ SCHEMAS: dict[str, Schema] = {
     HEALTH_SCHEMA: HEALTH,
     MEASUREMENT_SCHEMA: MEASUREMENT,
     TRUTH_SCHEMA: TRUTH,
+    REFERENCE_SCHEMA: REFERENCE,
     STATE_SCHEMA: STATE,
     CONFIG_SCHEMA: CONFIG,
 }
