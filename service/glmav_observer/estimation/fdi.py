@@ -405,7 +405,7 @@ class AxisMonitor:
     #: white noise (plus the IMU's over one interval), for the gain of ``full``
     var_diff_mps2: float = 0.0
     _r_prev: float = math.nan
-    _a_at_value: float = 0.0  # A_j when the current measured value was first seen
+    _v_imu_at_value: float = 0.0  # the IMU's velocity when the current value was first seen
 
     def __post_init__(self) -> None:
         self._var_r = self.cfg.sigma_meas_mps**2
@@ -537,15 +537,17 @@ class AxisMonitor:
         # GPS, a coarse step) while the IMU says the velocity changed: a quiet GPS repeats
         # its value in a hover, which is a measurement, not a fault. Without a usable
         # IMU, repeats alone count.
+        pred, sigma_pred = self.predict(a_int_mps, ints)
+        # the IMU's velocity (bias-corrected by the reference when there is one)
+        v_imu = pred if math.isfinite(pred) else a_int_mps
         same = y_mps == self._last_y
         if not same:
-            self._a_at_value = a_int_mps
+            self._v_imu_at_value = v_imu
         noisy = self.var_diff_mps2 > 2.0 * cfg.freeze_noise_mps**2
-        moved = abs(a_int_mps - self._a_at_value) > cfg.freeze_motion_mps
+        moved = abs(v_imu - self._v_imu_at_value) > cfg.freeze_motion_mps
         repeated = same and (noisy or moved or not self.fit.imu_ok)
         self._repeats = self._repeats + 1 if repeated else 0
         self._last_y = y_mps
-        pred, sigma_pred = self.predict(a_int_mps, ints)
         r = y_mps - pred
         if math.isfinite(r):
             self._scale = math.hypot(self.sigma_r_mps, sigma_pred)
