@@ -1,4 +1,10 @@
-"""``glmav-sitl``: fly a GLMAV scenario and stream MAVLink 2 to ground stations."""
+"""``glmav-sitl``: a simulated GLMAV that speaks MAVLink 2 like an autopilot.
+
+Without ``--scenario`` it starts on the ground at home, disarmed, and flies what a ground
+station (MAVSDK, MAVProxy, QGroundControl) commands: arm, takeoff, land, RTL, hold,
+offboard setpoints, parameters (sensor noise, velocity fault injection). With
+``--scenario`` it flies the scenario's setpoints, as recorded flights and tests do.
+"""
 
 from __future__ import annotations
 
@@ -19,18 +25,40 @@ from glmav_sitl.scenario import load_scenario, load_sitl_config, scenario_names
 log = logging.getLogger("glmav_sitl")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("glmav-observer")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def _build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="glmav-sitl", description=__doc__)
+    ap = argparse.ArgumentParser(
+        prog="glmav-sitl", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="fly a scenario and stream MAVLink")
-    r.add_argument(
-        "--scenario",
-        default="hover",
-        help=f"a name ({', '.join(scenario_names())}) or a path to a .toml file",
+    r = sub.add_parser(
+        "run",
+        help="fly (for a ground station, or a scenario) and stream MAVLink",
+        description="Stream MAVLink on the given links. Without --scenario: on the ground, "
+        "disarmed, flying what a ground station commands, until stopped (Ctrl-C) or --duration. "
+        "With --scenario: the scenario's flight, for its duration.",
     )
     r.add_argument(
-        "--duration", type=float, default=None, help="seconds of sim time (default: the scenario's)"
+        "--scenario",
+        default=None,
+        help=f"a name ({', '.join(scenario_names())}) or a path to a .toml file "
+        "(default: none, a ground station flies the vehicle)",
+    )
+    r.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="seconds of sim time (default: the scenario's; without a scenario, until stopped)",
     )
     r.add_argument("--speed", default="realtime", help="realtime | max | FACTOR (e.g. 10)")
     r.add_argument(
@@ -54,7 +82,11 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="HEX",
         help="sign outgoing MAVLink 2 packets with this 32-byte key (64 hex digits)",
     )
-    sub.add_parser("scenarios", help="list the packaged scenarios")
+    sub.add_parser(
+        "scenarios",
+        help="list the packaged scenarios",
+        description="List the packaged scenarios with their descriptions.",
+    )
     return ap
 
 
@@ -77,7 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             key = bytes.fromhex(args.signing_key)
             if len(key) != 32:
                 raise ValueError("--signing-key must be 32 bytes (64 hex digits)")
-        scenario = load_scenario(args.scenario)
+        scenario = None if args.scenario is None else load_scenario(args.scenario)
         sitl = load_sitl_config(args.config)
         params = load_vehicle_params(args.vehicle)
     except ConfigError as e:
@@ -94,7 +126,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     log.info(
-        "flying %s (%s) -> %s", scenario.name, scenario.source, ", ".join(args.link) or "no link"
+        "flying %s -> %s",
+        "for a ground station" if scenario is None else f"{scenario.name} ({scenario.source})",
+        ", ".join(args.link) or "no link",
     )
     try:
         summary = run(
@@ -125,6 +159,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{sent} messages, {summary.commands_received} commands"
         + (f"; final NED position {tuple(round(v, 2) for v in tr.p_ned_m)} m" if tr else "")
     )
+    est = summary.received_estimates
+    if est is not None and est.count:
+        rmse = est.rmse_ned_mps()
+        counts = ", ".join(f"{n} {k}" for k, n in sorted(est.count.items()))
+        srcs = ", ".join(f"{s}/{c}" for s, c in sorted(est.sources))
+        print(
+            f"received estimates: {counts} from {srcs}"
+            + (
+                f"; velocity RMSE against truth N/E/D {rmse[0]:.3f}/{rmse[1]:.3f}/{rmse[2]:.3f} m/s"
+                f" over {est.compared}"
+                if rmse is not None
+                else ""
+            )
+        )
     return 0
 
 
