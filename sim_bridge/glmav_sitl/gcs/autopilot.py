@@ -16,7 +16,7 @@ names them; the autopilot type stays MAV_AUTOPILOT_GENERIC (this is not PX4):
 mode        main  sub  behaviour
 ==========  ====  ===  =========================================================
 HOLD        4     3    hold the position where the mode was entered (default)
-TAKEOFF     4     2    climb to ``MIS_TAKEOFF_ALT`` above home, then HOLD
+TAKEOFF     4     2    climb at ``MPC_TKO_SPEED`` to ``MIS_TAKEOFF_ALT``, then HOLD
 LAND        4     6    descend at ``MPC_LAND_SPEED``; disarm 1 s after touchdown
 RTL         4     5    climb to ``RTL_RETURN_ALT``, fly over home, LAND
 MISSION     4     4    a scenario flight (not selectable)
@@ -117,6 +117,7 @@ class Autopilot:
         self._rtl_phase = ""
         self._target_alt_m = 0.0
         self._ground_since_s: float | None = None
+        self._takeoff_climbing = False
         self._scenario_faults = sim.scenario.faults
 
     # ------------------------------------------------------------------ state
@@ -245,8 +246,10 @@ class Autopilot:
         if not 1.0 <= alt_m <= 100.0:
             return self._deny(f"takeoff refused: {alt_m:.1f} m outside [1, 100] m")
         self._target_alt_m = alt_m
-        x = self.sim.x
-        self._fly(Setpoint(0.0, "position", position_ned_m=(x[0], x[1], -alt_m)))
+        self._takeoff_climbing = True
+        self._fly(
+            Setpoint(0.0, "velocity", velocity_ned_mps=(0.0, 0.0, -self.params.get("MPC_TKO_SPEED")))
+        )
         self._set_mode(Mode.TAKEOFF)
         self._say(mavlink2.MAV_SEVERITY_INFO, f"takeoff to {alt_m:.1f} m")
         return int(mavlink2.MAV_RESULT_ACCEPTED)
@@ -373,7 +376,16 @@ class Autopilot:
             return
         t = self.sim.t_s
         x = self.sim.x
-        if self.mode is Mode.TAKEOFF and abs(-x[2] - self._target_alt_m) < TAKEOFF_DONE_M:
+        if self.mode is Mode.TAKEOFF and self._takeoff_climbing:
+            # climb at MPC_TKO_SPEED, then the position loop (its speed pos_p * error equals
+            # the climb speed here, so the hand-over is smooth)
+            left = self._target_alt_m + x[2]
+            if left * self.controller.k.pos_p <= self.params.get("MPC_TKO_SPEED"):
+                self._takeoff_climbing = False
+                self._fly(
+                    Setpoint(0.0, "position", position_ned_m=(x[0], x[1], -self._target_alt_m))
+                )
+        elif self.mode is Mode.TAKEOFF and abs(-x[2] - self._target_alt_m) < TAKEOFF_DONE_M:
             self._say(mavlink2.MAV_SEVERITY_INFO, "takeoff complete")
             self._set_mode(Mode.HOLD)  # at the takeoff altitude, not where the climb is now
             self._fly(Setpoint(0.0, "position", position_ned_m=(x[0], x[1], -self._target_alt_m)))

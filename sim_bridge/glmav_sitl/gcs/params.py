@@ -173,6 +173,7 @@ def default_params(
         ),
         Param("SIM_VFLT_LEN", 0.0, 0.0, 1e6, "fault duration, s (0: until SIM_VFLT_AXIS = 0)"),
         Param("MIS_TAKEOFF_ALT", 10.0, 1.0, 100.0, "takeoff altitude above home, m"),
+        Param("MPC_TKO_SPEED", 2.0, 0.5, 5.0, "climb speed of a takeoff, m/s"),
         Param("RTL_RETURN_ALT", 15.0, 2.0, 100.0, "return altitude above home, m"),
         Param("MPC_LAND_SPEED", 0.7, 0.2, 3.0, "descent speed when landing, m/s"),
         Param("MPC_XY_VEL_MAX", max_speed_mps, 0.5, 20.0, "horizontal speed limit, m/s"),
