@@ -248,7 +248,9 @@ class Autopilot:
         self._target_alt_m = alt_m
         self._takeoff_climbing = True
         self._fly(
-            Setpoint(0.0, "velocity", velocity_ned_mps=(0.0, 0.0, -self.params.get("MPC_TKO_SPEED")))
+            Setpoint(
+                0.0, "velocity", velocity_ned_mps=(0.0, 0.0, -self.params.get("MPC_TKO_SPEED"))
+            )
         )
         self._set_mode(Mode.TAKEOFF)
         self._say(mavlink2.MAV_SEVERITY_INFO, f"takeoff to {alt_m:.1f} m")

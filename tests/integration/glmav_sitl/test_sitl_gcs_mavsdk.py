@@ -133,6 +133,14 @@ def test_mavsdk_flies_the_simulator(free_udp_port: Callable[[], int]) -> None:
             pl.destroy()
         drone.destroy()
     # the events a ground station saw, in order (STATUSTEXT)
-    want = ["armed", "takeoff complete", "mode OFFBOARD", "mode HOLD", "mode LAND", "landed", "disarmed"]
+    want = [
+        "armed",
+        "takeoff complete",
+        "mode OFFBOARD",
+        "mode HOLD",
+        "mode LAND",
+        "landed",
+        "disarmed",
+    ]
     it = iter(summary.statustexts)
     assert all(w in it for w in want), summary.statustexts
