@@ -3,8 +3,10 @@
 ``--link`` connection strings (repeatable; default: ``[service].links`` of the config,
 else ``udpin:127.0.0.1:14550``), ``--config configs/service.toml``, ``--zenoh PATH.json5``
 (enables Zenoh with that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve``
-and ``--out PATH.csv|.jsonl`` override the file. Exit codes: 0 stopped cleanly, 2 bad
-configuration or link.
+and ``--out PATH.csv|.jsonl`` override the file; ``--service-id NAME`` names this service
+on Zenoh (in every payload, its liveliness token and its config key; a second service with
+the same id on one Zenoh network refuses to start). Exit codes: 0 stopped cleanly, 2 bad
+configuration or link, or a namesake already running.
 """
 
 from __future__ import annotations
@@ -21,7 +23,10 @@ logger = logging.getLogger(__name__)
 
 def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
-        "serve", help="estimate velocities from live MAVLink links and publish them"
+        "serve",
+        help="estimate velocities from live MAVLink links and publish them",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--link", action="append", default=None, metavar="CONN",
                    help=f"pymavlink connection string, repeatable (default {DEFAULT_LINK})")  # fmt: skip
@@ -31,6 +36,9 @@ def register(sub: Any) -> None:
     p.add_argument("--rerun", default=None, metavar="MODE",
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
+    p.add_argument("--service-id", default=None, metavar="NAME",
+                   help="this service's id on Zenoh (default: [service] id, glmav-observer); "
+                   "a second service with the same id on one Zenoh network refuses to start")  # fmt: skip
     p.set_defaults(func=main)
 
 
@@ -42,6 +50,12 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         config = load_config(args.config)
+        if args.service_id is not None:
+            from dataclasses import replace
+
+            from glmav_observer.publish.zenoh_sink import check_service_id
+
+            config = replace(config, service_id=check_service_id(args.service_id))
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
         links = args.link or list(config.links) or [DEFAULT_LINK]
