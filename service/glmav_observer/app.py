@@ -397,6 +397,10 @@ def open_sinks(
                     effective_config=config.effective(),
                 )
             )
+        if config.mavlink_out.enabled:
+            from glmav_observer.publish.mavlink_out import MavlinkOutSink
+
+            sinks.append(MavlinkOutSink(config.mavlink_out, signing_key=config.signing_key))
         mode = rerun_mode if rerun_mode is not None else config.rerun.mode
         if mode != "off":
             from glmav_observer.publish.rerun_sink import open_rerun_sink

@@ -5,7 +5,8 @@ else ``udpin:127.0.0.1:14550``), ``--config configs/service.toml``, ``--zenoh PA
 (enables Zenoh with that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve``
 and ``--out PATH.csv|.jsonl`` override the file; ``--service-id NAME`` names this service
 on Zenoh (in every payload, its liveliness token and its config key; a second service with
-the same id on one Zenoh network refuses to start). Exit codes: 0 stopped cleanly, 2 bad
+the same id on one Zenoh network refuses to start); ``--mavlink-out CONN`` sends the active
+estimate back on MAVLink (``[mavlink_out]``, :mod:`glmav_observer.publish.mavlink_out`). Exit codes: 0 stopped cleanly, 2 bad
 configuration or link, or a namesake already running.
 """
 
@@ -36,6 +37,10 @@ def register(sub: Any) -> None:
     p.add_argument("--rerun", default=None, metavar="MODE",
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
+    p.add_argument("--mavlink-out", default=None, metavar="CONN",
+                   help="send the active estimate (ODOMETRY), fault events (STATUSTEXT) and "
+                   "health (NAMED_VALUE_FLOAT) on this connection, as a component of each "
+                   "vehicle ([mavlink_out] in the config)")  # fmt: skip
     p.add_argument("--service-id", default=None, metavar="NAME",
                    help="this service's id on Zenoh (default: [service] id, glmav-observer); "
                    "a second service with the same id on one Zenoh network refuses to start")  # fmt: skip
@@ -56,6 +61,11 @@ def main(args: argparse.Namespace) -> int:
             from glmav_observer.publish.zenoh_sink import check_service_id
 
             config = replace(config, service_id=check_service_id(args.service_id))
+        if args.mavlink_out is not None:
+            from dataclasses import replace
+
+            out = replace(config.mavlink_out, enabled=True, link=args.mavlink_out)
+            config = replace(config, mavlink_out=out)
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
         links = args.link or list(config.links) or [DEFAULT_LINK]

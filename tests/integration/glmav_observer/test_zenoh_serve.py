@@ -309,7 +309,7 @@ def test_two_services_on_one_router_are_told_apart_and_a_namesake_refuses(
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-        )  # fmt: skip
+        )
         for sid, port in ports.items()
     }
     try:
