@@ -55,6 +55,7 @@ class _Vehicle:
     next_health_s: float = -math.inf
     reset_counter: int = 0
     source: str | None = None
+    seen: bool = False  # a first estimate has been sent (sets ``source`` without a reset)
     active_config: str | None = None
     faults: frozenset[tuple[str, str, float]] = frozenset()
 
@@ -74,6 +75,12 @@ class MavlinkOutSink:
             raise ValueError(f"mavlink_out.component_id {settings.component_id}: not allowed")
         self.settings = settings
         self.link = Link(settings.link)
+        # udpout: send to the destination ourselves (pymavlink's write swallows errors)
+        self._dest: Any = (
+            getattr(self.link._m, "destination_addr", None)
+            if settings.link.startswith("udpout:")
+            else None
+        )
         self.signing_key = signing_key
         self._mavs: dict[int, Any] = {}
         self._vehicles: dict[int, _Vehicle] = {}
@@ -107,7 +114,7 @@ class MavlinkOutSink:
     def _send(self, sysid: int, msg: Any) -> None:
         """Encode and send (caller holds the lock)."""
         try:
-            self.link.write(bytes(msg.pack(self._mav(sysid))))
+            self.link.write(bytes(msg.pack(self._mav(sysid))), self._dest)
         except Exception as exc:  # an encoding error must not stop the estimator
             self.stats.errors += 1
             log.warning("mavlink out: %s not sent: %s", msg.get_type(), exc)
@@ -158,9 +165,10 @@ class MavlinkOutSink:
                 return
             v = self._vehicle(r.sysid)
             if r.source_config != v.source:
-                if v.source is not None or r.source_config is not None:
+                if v.seen:  # a configuration switch: the estimate may jump
                     v.reset_counter = (v.reset_counter + 1) % 256
                 v.source = r.source_config
+            v.seen = True
             if r.t_boot_s < v.next_estimate_s:
                 return
             # the next slot on the rate's grid (no drift, no burst after a gap)

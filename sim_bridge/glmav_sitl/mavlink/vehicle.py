@@ -98,6 +98,13 @@ class ReceivedEstimates:
     max_abs_err_mps: float = 0.0
     estimator_types: set[int] = field(default_factory=set)
     last_v_ned_mps: tuple[float, float, float] | None = None
+    reset_counters: set[int] = field(default_factory=set)
+    qualities: set[int] = field(default_factory=set)
+    #: what other components said: STATUSTEXT texts, NAMED_VALUE_FLOAT (name -> values),
+    #: HEARTBEAT (sysid, compid) -> (type, autopilot)
+    texts: list[str] = field(default_factory=list)
+    named_values: dict[str, list[float]] = field(default_factory=dict)
+    heartbeats: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
 
     def rmse_ned_mps(self) -> tuple[float, float, float] | None:
         if self.compared == 0:
@@ -412,6 +419,8 @@ class MavlinkVehicle:
         self.stats.received += 1
         if t in ("ODOMETRY", "VISION_SPEED_ESTIMATE"):
             self._received_estimate(t, m)
+        elif t in ("STATUSTEXT", "NAMED_VALUE_FLOAT", "HEARTBEAT"):
+            self._received_report(t, m)
         elif t.startswith("PARAM_"):
             self._param_message(t, m)
         elif t == "SET_POSITION_TARGET_LOCAL_NED":
@@ -511,6 +520,19 @@ class MavlinkVehicle:
             if p is not None:  # the value now in force, set or not (the protocol's answer)
                 self._param_value(self.params.index(name))
 
+    def _received_report(self, t: str, m: Any) -> None:
+        """Another component's HEARTBEAT, STATUSTEXT or NAMED_VALUE_FLOAT, kept for the summary."""
+        r = self.received_estimates
+        if t == "HEARTBEAT":
+            r.heartbeats[(m.get_srcSystem(), m.get_srcComponent())] = (
+                int(m.type),
+                int(m.autopilot),
+            )
+        elif t == "STATUSTEXT":
+            r.texts.append(str(m.text))
+        else:
+            r.named_values.setdefault(str(m.name), []).append(float(m.value))
+
     def _received_estimate(self, t: str, m: Any) -> None:
         r = self.received_estimates
         src = (m.get_srcSystem(), m.get_srcComponent())
@@ -522,6 +544,8 @@ class MavlinkVehicle:
             if m.child_frame_id != mavlink2.MAV_FRAME_LOCAL_NED:
                 return  # only NED velocities are compared
             r.estimator_types.add(int(m.estimator_type))
+            r.reset_counters.add(int(m.reset_counter))
+            r.qualities.add(int(m.quality))
             t_us, v = int(m.time_usec), (m.vx, m.vy, m.vz)
         else:
             t_us, v = int(m.usec), (m.x, m.y, m.z)
