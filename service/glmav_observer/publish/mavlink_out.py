@@ -169,11 +169,12 @@ class MavlinkOutSink:
                     v.reset_counter = (v.reset_counter + 1) % 256
                 v.source = r.source_config
             v.seen = True
-            if r.t_boot_s < v.next_estimate_s:
+            if r.t_boot_s < v.next_estimate_s - 1e-6:  # 1 us: the grid's rounding
                 return
             # the next slot on the rate's grid (no drift, no burst after a gap)
             period = 1.0 / s.rate_hz
-            v.next_estimate_s = max(v.next_estimate_s + period, r.t_boot_s + 0.5 * period)
+            late = r.t_boot_s - v.next_estimate_s > period  # the first, or after a gap
+            v.next_estimate_s = (r.t_boot_s if late else v.next_estimate_s) + period
             var = [s.sigma_measured_mps**2] * 3
             if r.lost_axis is not None:
                 sig = r.sigma_lost_mps

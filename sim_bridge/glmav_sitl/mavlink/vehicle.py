@@ -114,8 +114,8 @@ class ReceivedEstimates:
         return (math.sqrt(e[0] / n), math.sqrt(e[1] / n), math.sqrt(e[2] / n))
 
 
-#: truth history kept for comparing received estimates (s)
-_TRUTH_HISTORY_S = 5.0
+#: truth history kept for comparing received estimates (s): an onboard estimator may lag
+_TRUTH_HISTORY_S = 30.0
 
 
 class _Fanout:

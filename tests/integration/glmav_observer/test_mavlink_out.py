@@ -153,3 +153,72 @@ def test_odometry_statustext_and_health_reach_the_vehicle(
     assert got.named_values["GLV_CFG"][0] == 0.0 and 3.0 in got.named_values["GLV_CFG"]
     assert all(v == 1.0 for v in got.named_values["GLV_N"][3:])  # ok after the warm-up
     assert len(got.named_values["GLV_N"]) == pytest.approx(14, abs=2)
+
+
+def test_vision_speed_estimate_signed_with_the_service_key(
+    free_udp_port: Callable[[], int],
+) -> None:
+    """The sink alone, records in, a receiver that accepts only frames signed with the key."""
+    import socket
+
+    from glmav_observer.config import MavlinkOutSettings
+    from glmav_observer.publish.mavlink_out import MavlinkOutSink
+    from glmav_observer.records import VelocityRecord
+
+    key = bytes(range(32))
+    port = free_udp_port()
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", port))
+    rx.settimeout(2.0)
+    settings = MavlinkOutSettings(
+        enabled=True,
+        link=f"udpout:127.0.0.1:{port}",
+        system_id=42,
+        component_id=197,
+        rate_hz=10.0,
+        odometry=False,
+        vision_speed_estimate=True,
+    )
+    sink = MavlinkOutSink(settings, signing_key=key)
+    try:
+        for k in range(250):  # 1 s at 250 Hz, east lost (dead reckoning) from 0.5 s
+            lost = "e" if k >= 125 else None
+            sink.write(
+                VelocityRecord(
+                    3, "active", k * 0.004, (0.0, 0.0, 0.0), (1.0, -2.0, 0.5), lost,
+                    "dead_reckoning" if lost else "ok", k, "c3" if lost else "full",
+                    0.2 if lost else None,
+                )
+            )  # fmt: skip
+    finally:
+        sink.close()
+    parser = mavlink2.MAVLink(None)
+    parser.signing.secret_key = key
+    parser.signing.allow_unsigned_callback = None  # unsigned or badly signed: BAD_DATA
+    got = []
+    try:
+        while True:
+            for m in parser.parse_buffer(rx.recv(65535)) or []:
+                got.append(m)
+    except TimeoutError:
+        pass
+    finally:
+        rx.close()
+    assert [m.get_type() for m in got if m.get_type() == "BAD_DATA"] == []
+    vse = [m for m in got if m.get_type() == "VISION_SPEED_ESTIMATE"]
+    # 10 Hz of vehicle time over 1 s; system 42 (fixed), component 197, all signed
+    assert len(vse) == 10
+    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in got} == {(42, 197)}
+    assert all(m.get_signed() for m in got)
+    assert [round(m.usec / 4000) for m in vse] == [0, 25, 50, 75, 100, 125, 150, 175, 200, 225]
+    assert all((m.x, m.y, m.z) == (1.0, -2.0, 0.5) for m in vse)
+    # covariance: 0.05^2 on measured axes; the dead-reckoned east axis 0.2^2 (float32)
+    assert vse[0].covariance[0] == pytest.approx(0.0025) and vse[0].covariance[4] == pytest.approx(
+        0.0025
+    )
+    assert vse[-1].covariance[4] == pytest.approx(0.04) and vse[-1].covariance[8] == pytest.approx(
+        0.0025
+    )
+    assert [m.reset_counter for m in vse] == [0] * 5 + [1] * 5
+    hb = [m for m in got if m.get_type() == "HEARTBEAT"]
+    assert hb and hb[0].type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
