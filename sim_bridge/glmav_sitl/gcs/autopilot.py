@@ -118,6 +118,7 @@ class Autopilot:
         self._target_alt_m = 0.0
         self._ground_since_s: float | None = None
         self._takeoff_climbing = False
+        self.resting = ground_station_flight  # on the ground at home
         self._scenario_faults = sim.scenario.faults
 
     # ------------------------------------------------------------------ state
@@ -361,10 +362,15 @@ class Autopilot:
 
     # ------------------------------------------------------------- every tick
     def after_step(self) -> None:
-        """The ground (ground-station flight only): the vehicle cannot sink below ``z = 0``."""
+        """The ground (ground-station flight only): the vehicle cannot sink below ``z = 0``.
+
+        Resting on it (``resting``), the accelerometer reads the ground's push (-g on the
+        body z axis), not the model's free fall."""
         x = self.sim.x
-        if x[2] <= 0.0:
+        if x[2] < 0.0:
+            self.resting = False
             return
+        self.resting = True
         psi = euler_from_quat(x[6], x[7], x[8], x[9])[2]
         q = quat_from_euler(0.0, 0.0, psi)
         x[2] = 0.0

@@ -56,7 +56,7 @@ from glmav_sitl.gcs.autopilot import Autopilot, Mode
 from glmav_sitl.gcs.params import ParamError, ParamTable, default_params
 from glmav_sitl.mavlink.links import Link
 from glmav_sitl.scenario import STREAM_IDS
-from glmav_sitl.simulator import Simulator
+from glmav_sitl.simulator import Simulator, TruthState
 
 log = logging.getLogger(__name__)
 
@@ -272,7 +272,7 @@ class MavlinkVehicle:
                 3,
             )
         elif name in ("raw_imu", "scaled_imu", "highres_imu"):
-            gyro, acc = sim.imu.sample(tr.t_s, tr.omega_body_radps, tr.f_body_mps2, rate)
+            gyro, acc = sim.imu.sample(tr.t_s, tr.omega_body_radps, self._specific_force(tr), rate)
             if name == "highres_imu":
                 msg = mavlink2.MAVLink_highres_imu_message(
                     t_us,
@@ -335,7 +335,7 @@ class MavlinkVehicle:
             )
             q = tr.q
             e = tr.euler_rad
-            f = tr.f_body_mps2
+            f = self._specific_force(tr)
             w = tr.omega_body_radps
             v = tr.v_ned_mps
             sc = sim.sensor_config
@@ -371,6 +371,13 @@ class MavlinkVehicle:
             return
         self._send(msg)
         self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+
+    def _specific_force(self, tr: TruthState) -> tuple[float, float, float]:
+        """What an accelerometer reads: the model's, or on the ground the ground's push."""
+        ap = self.autopilot
+        if ap is not None and ap.resting:
+            return (0.0, 0.0, -self.sim.params.g)  # level on the ground: the normal force
+        return tr.f_body_mps2
 
     def send_autopilot_version(self) -> None:
         self._send(

@@ -121,6 +121,11 @@ def test_parameters_list_read_set_and_refusals() -> None:
         tr = truth[m.time_boot_ms]
         assert (m.vx, m.vy, m.vz) == pytest.approx(tr.v_ned_mps, abs=1e-6)
     assert summary.final_truth is not None and summary.final_truth.p_ned_m[2] == 0.0
+    # resting on the ground the accelerometer feels the ground's push: -g on body z (the
+    # model alone would read free fall, 0); turn-on bias sigma 0.2 m/s^2, 4 sigma
+    imu = [m for m in msgs if m.get_type() == "HIGHRES_IMU"]
+    zacc = sum(m.zacc for m in imu) / len(imu)
+    assert zacc == pytest.approx(-9.81, abs=0.8)
 
 
 def test_ground_station_flight_arm_takeoff_offboard_timeout_rtl_land() -> None:
