@@ -455,6 +455,14 @@ class MavlinkVehicle:
             else:
                 p7 = [m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z]
             result = self.command(int(m.command), p7)
+            log.debug(
+                "command %d %s from %d/%d: result %d",
+                m.command,
+                [round(x, 3) for x in p7],
+                m.get_srcSystem(),
+                m.get_srcComponent(),
+                result,
+            )
             self._send(
                 mavlink2.MAVLink_command_ack_message(
                     m.command, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()
