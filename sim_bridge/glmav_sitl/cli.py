@@ -160,6 +160,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         + (f"; final NED position {tuple(round(v, 2) for v in tr.p_ned_m)} m" if tr else "")
     )
     est = summary.received_estimates
+    if est is not None and est.heartbeats:
+        comps = ", ".join(
+            f"{s}/{c} (type {t})" for (s, c), (t, _a) in sorted(est.heartbeats.items())
+        )
+        print(
+            f"other components: {comps}; {len(est.texts)} STATUSTEXT, "
+            f"{sum(len(v) for v in est.named_values.values())} NAMED_VALUE_FLOAT"
+        )
     if est is not None and est.count:
         rmse = est.rmse_ned_mps()
         counts = ", ".join(f"{n} {k}" for k, n in sorted(est.count.items()))
