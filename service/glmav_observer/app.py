@@ -50,6 +50,9 @@ from glmav_observer.records import CONFIGS, Record
 
 logger = logging.getLogger(__name__)
 
+#: Messages that carry the velocity measurement (``rx_<NAME>`` counters of a vehicle).
+VELOCITY_MESSAGES = ("LOCAL_POSITION_NED",)
+
 #: How often (host seconds) the live loop checks received rates against requested ones.
 RATE_CHECK_PERIOD_S = 1.0
 
@@ -99,6 +102,11 @@ class ServiceSummary:
             )
         for sysid, v in sorted(self.vehicles.items()):
             lines.append(f"vehicle {sysid}: active={v.active_config}")
+            if not any(v.counters.get(f"rx_{m}", 0) for m in VELOCITY_MESSAGES):
+                lines.append(
+                    "  no velocity measurement received (LOCAL_POSITION_NED): every estimate is "
+                    "dead reckoning from the IMU, and fault detection never ran"
+                )
             if v.truth_samples:
                 lines.append(f"  RMSE vs SIM_STATE (n, e, d) m/s over {v.truth_samples} samples:")
                 for cfg, r in v.rmse_ned_mps.items():
@@ -107,9 +115,15 @@ class ServiceSummary:
             else:
                 lines.append("  no SIM_STATE truth: no RMSE")
             for f in v.faults:
-                lines.append(f"  fault isolated: {f}")
+                lines.append(
+                    f"  fault isolated: axis {f['axis']} ({f['kind']}) at t = {f['t_detect_s']:.3f} s"
+                )
             for s in v.switches:
-                lines.append(f"  switch: {s}")
+                jump = "n/a" if s.get("jump_mps") is None else f"{s['jump_mps']:.3f} m/s"
+                lines.append(
+                    f"  switch: {s['from']} -> {s['to']} at t = {s['t_boot_s']:.3f} s "
+                    f"({s['reason']}), jump {jump}"
+                )
             dropped = {
                 k: n
                 for k, n in v.counters.items()
@@ -127,7 +141,8 @@ class ServiceSummary:
                     "other_component",
                 )
             }
-            lines.append(f"  samples dropped/flagged: {dropped or 'none'}")
+            shown = ", ".join(f"{k}={n}" for k, n in dropped.items()) or "none"
+            lines.append(f"  samples dropped/flagged: {shown}")
         return "\n".join(lines)
 
 
@@ -566,6 +581,10 @@ def open_sinks(
                     effective_config=config.effective(),
                 )
             )
+        if config.mavlink_out.enabled:
+            from glmav_observer.publish.mavlink_out import MavlinkOutSink
+
+            sinks.append(MavlinkOutSink(config.mavlink_out, signing_key=config.signing_key))
         mode = rerun_mode if rerun_mode is not None else config.rerun.mode
         if mode != "off":
             from glmav_observer.publish.rerun_sink import open_rerun_sink

@@ -62,6 +62,28 @@ class RerunSettings:
     serve_bind: str = "127.0.0.1"
 
 
+#: Component ids a ground station uses (MAVLink's MAV_COMP_ID_MISSIONPLANNER, QGroundControl):
+#: the service never claims them.
+GCS_COMPONENT_IDS = frozenset({190})
+
+
+@dataclass(frozen=True, slots=True)
+class MavlinkOutSettings:
+    """``[mavlink_out]``: the active estimate (and health) back on MAVLink (publish/mavlink_out.py)."""
+
+    enabled: bool = False
+    link: str = ""  # a pymavlink connection string, e.g. udpout:127.0.0.1:14551
+    system_id: int = 0  # 0: each vehicle's own system id (a component of that vehicle)
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    rate_hz: float = 30.0  # ODOMETRY / VISION_SPEED_ESTIMATE per vehicle, vehicle time
+    odometry: bool = True
+    vision_speed_estimate: bool = False
+    statustext: bool = True  # fault isolations and configuration switches
+    named_value_float: bool = True  # per-axis health and the active configuration
+    health_rate_hz: float = 1.0  # NAMED_VALUE_FLOAT per vehicle
+    sigma_measured_mps: float = 0.05  # velocity std of a measured axis in the covariance
+
+
 @dataclass(frozen=True, slots=True)
 class ServiceConfig:
     """Everything the service needs; build with :func:`load_config`."""
@@ -75,6 +97,7 @@ class ServiceConfig:
     estimation: EstimatorConfig = field(default_factory=EstimatorConfig)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     rerun: RerunSettings = field(default_factory=RerunSettings)
+    mavlink_out: MavlinkOutSettings = field(default_factory=MavlinkOutSettings)
     signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing
     source: str = "<defaults>"
 
@@ -293,6 +316,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     key_file = sec.get("signing_key_file", str, "")
     sec.done()
     signing_key = _signing_key(file, key_hex, key_file)
+    mavlink_out = _mavlink_out(root, file)
     root.done()
     return ServiceConfig(
         service_id=service_id,
@@ -304,9 +328,50 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         estimation=estimation,
         zenoh=zenoh,
         rerun=rerun,
+        mavlink_out=mavlink_out,
         signing_key=signing_key,
         source=file,
     )
+
+
+def _mavlink_out(root: _Reader, file: str) -> MavlinkOutSettings:
+    """``[mavlink_out]`` (opt-in MAVLink output of the estimate; see configs/service.toml)."""
+    r = root.sub("mavlink_out")
+    d = MavlinkOutSettings()
+
+    def comp(x: int) -> str | None:
+        if not 1 <= x <= 254:
+            return "must be 1..254"
+        if x in GCS_COMPONENT_IDS:
+            return "190 is a ground station's component id (MAV_COMP_ID_MISSIONPLANNER)"
+        return None
+
+    settings = MavlinkOutSettings(
+        enabled=r.get("enabled", bool, d.enabled),
+        link=r.get("link", str, d.link),
+        system_id=r.get(
+            "system_id",
+            int,
+            d.system_id,
+            lambda x: (
+                None if 0 <= x <= 254 else "must be 0 (the vehicle's) or 1..254 (255 is a GCS's)"
+            ),
+        ),
+        component_id=r.get("component_id", int, d.component_id, comp),
+        rate_hz=r.get(
+            "rate_hz", float, d.rate_hz, lambda x: None if 0 < x <= 1000 else "must be in (0, 1000]"
+        ),
+        odometry=r.get("odometry", bool, d.odometry),
+        vision_speed_estimate=r.get("vision_speed_estimate", bool, d.vision_speed_estimate),
+        statustext=r.get("statustext", bool, d.statustext),
+        named_value_float=r.get("named_value_float", bool, d.named_value_float),
+        health_rate_hz=r.get("health_rate_hz", float, d.health_rate_hz, _positive),
+        sigma_measured_mps=r.get("sigma_measured_mps", float, d.sigma_measured_mps, _positive),
+    )
+    r.done()
+    if settings.enabled and not settings.link:
+        raise ConfigError(file, "mavlink_out.link", "required when mavlink_out.enabled = true")
+    return settings
 
 
 def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:

@@ -1,4 +1,10 @@
-"""``glmav-sitl``: fly a GLMAV scenario and stream MAVLink 2 to ground stations."""
+"""``glmav-sitl``: a simulated GLMAV that speaks MAVLink 2 like an autopilot.
+
+Without ``--scenario`` it starts on the ground at home, disarmed, and flies what a ground
+station (MAVSDK, MAVProxy, QGroundControl) commands: arm, takeoff, land, RTL, hold,
+offboard setpoints, parameters (sensor noise, velocity fault injection). With
+``--scenario`` it flies the scenario's setpoints, as recorded flights and tests do.
+"""
 
 from __future__ import annotations
 
@@ -20,18 +26,40 @@ from glmav_sitl.scenario import SENSOR_PROFILES, load_scenario, load_sitl_config
 log = logging.getLogger("glmav_sitl")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("glmav-observer")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def _build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="glmav-sitl", description=__doc__)
+    ap = argparse.ArgumentParser(
+        prog="glmav-sitl", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="fly a scenario and stream MAVLink")
-    r.add_argument(
-        "--scenario",
-        default="hover",
-        help=f"a name ({', '.join(scenario_names())}) or a path to a .toml file",
+    r = sub.add_parser(
+        "run",
+        help="fly (for a ground station, or a scenario) and stream MAVLink",
+        description="Stream MAVLink on the given links. Without --scenario: on the ground, "
+        "disarmed, flying what a ground station commands, until stopped (Ctrl-C) or --duration. "
+        "With --scenario: the scenario's flight, for its duration.",
     )
     r.add_argument(
-        "--duration", type=float, default=None, help="seconds of sim time (default: the scenario's)"
+        "--scenario",
+        default=None,
+        help=f"a name ({', '.join(scenario_names())}) or a path to a .toml file "
+        "(default: none, a ground station flies the vehicle)",
+    )
+    r.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="seconds of sim time (default: the scenario's; without a scenario, until stopped)",
     )
     r.add_argument("--speed", default="realtime", help="realtime | max | FACTOR (e.g. 10)")
     r.add_argument(
@@ -75,7 +103,11 @@ def _build_parser() -> argparse.ArgumentParser:
     f.add_argument("--speed", type=float, default=1.0, help="rate factor (default 1: as recorded)")
     f.add_argument("--stagger", type=float, default=1.0, metavar="S",
                    help="vehicle starts spread over S s (default 1)")  # fmt: skip
-    sub.add_parser("scenarios", help="list the packaged scenarios")
+    sub.add_parser(
+        "scenarios",
+        help="list the packaged scenarios",
+        description="List the packaged scenarios with their descriptions.",
+    )
     return ap
 
 
@@ -102,8 +134,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             key = bytes.fromhex(args.signing_key)
             if len(key) != 32:
                 raise ValueError("--signing-key must be 32 bytes (64 hex digits)")
-        scenario = load_scenario(args.scenario)
-        if args.sensor_profile is not None:
+        scenario = None if args.scenario is None else load_scenario(args.scenario)
+        if scenario is not None and args.sensor_profile is not None:
             scenario = dataclasses.replace(scenario, sensor_profile=args.sensor_profile)
         sitl = load_sitl_config(args.config)
         params = load_vehicle_params(args.vehicle)
@@ -121,10 +153,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     log.info(
-        "flying %s (%s), %s sensors -> %s",
-        scenario.name,
-        scenario.source,
-        scenario.sensor_profile,
+        "flying %s -> %s",
+        "for a ground station"
+        if scenario is None
+        else f"{scenario.name} ({scenario.source}), {scenario.sensor_profile} sensors",
         ", ".join(args.link) or "no link",
     )
     try:
@@ -156,6 +188,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{sent} messages, {summary.commands_received} commands"
         + (f"; final NED position {tuple(round(v, 2) for v in tr.p_ned_m)} m" if tr else "")
     )
+    est = summary.received_estimates
+    if est is not None and est.heartbeats:
+        comps = ", ".join(
+            f"{s}/{c} (type {t})" for (s, c), (t, _a) in sorted(est.heartbeats.items())
+        )
+        print(
+            f"other components: {comps}; {len(est.texts)} STATUSTEXT, "
+            f"{sum(len(v) for v in est.named_values.values())} NAMED_VALUE_FLOAT"
+        )
+    if est is not None and est.count:
+        rmse = est.rmse_ned_mps()
+        counts = ", ".join(f"{n} {k}" for k, n in sorted(est.count.items()))
+        srcs = ", ".join(f"{s}/{c}" for s, c in sorted(est.sources))
+        print(
+            f"received estimates: {counts} from {srcs}"
+            + (
+                f"; velocity RMSE against truth N/E/D {rmse[0]:.3f}/{rmse[1]:.3f}/{rmse[2]:.3f} m/s"
+                f" over {est.compared}"
+                if rmse is not None
+                else ""
+            )
+        )
     return 0
 
 

@@ -13,15 +13,16 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from glmav_sitl.dynamics.model import ModelOptions
 from glmav_sitl.mavlink.links import Link, open_link
-from glmav_sitl.mavlink.vehicle import MavlinkVehicle
+from glmav_sitl.mavlink.vehicle import MavlinkVehicle, ReceivedEstimates
 from glmav_sitl.params import VehicleParams, load_vehicle_params
 from glmav_sitl.scenario import (
     Scenario,
+    Setpoint,
     SitlConfig,
     effective_rates,
     load_scenario,
@@ -44,6 +45,8 @@ class RunSummary:
     bad_input: int = 0
     stopped_early: bool = False
     final_truth: TruthState | None = None
+    received_estimates: ReceivedEstimates | None = None
+    statustexts: list[str] = field(default_factory=list)
 
     @property
     def realtime_factor(self) -> float:
@@ -62,8 +65,21 @@ def parse_speed(speed: str | float | None) -> float | None:
     return f
 
 
+def ground_scenario() -> Scenario:
+    """Ground-station flight: on the ground at home, rotors stopped, waiting for commands."""
+    return replace(
+        load_scenario("hover"),
+        name="ground-station",
+        description="On the ground at home, disarmed; flies what a ground station commands",
+        position_ned_m=(0.0, 0.0, 0.0),
+        rotor_radps=(0.0, 0.0),
+        setpoints=(Setpoint(0.0, "idle"),),
+        source="<ground-station flight>",
+    )
+
+
 def run(  # noqa: PLR0917 (the positional order is the documented API of issue #3)
-    scenario: Scenario | str = "hover",
+    scenario: Scenario | str | None = "hover",
     links: Sequence[str | Link] = (),
     duration_s: float | None = None,
     speed: str | float | None = "realtime",
@@ -83,11 +99,19 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
 ) -> RunSummary:
     """Fly ``scenario`` for ``duration_s`` (default: the scenario's), streaming MAVLink.
 
+    ``scenario=None``: ground-station flight (:mod:`glmav_sitl.gcs.autopilot`): on the
+    ground, disarmed, flying what a ground station commands, until ``duration_s`` or
+    ``stop_event`` (no duration: until stopped).
+
     ``speed``: ``"realtime"``, ``"max"`` (as fast as possible) or a factor. Links are
     connection strings (``udpout:127.0.0.1:14550``) or already-open :class:`Link`\\ s
     (closed here only if opened here). ``started`` is set once the links are open.
     """
-    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    gcs_flight = scenario is None
+    if scenario is None:
+        sc = ground_scenario()
+    else:
+        sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
     sitl = sitl or load_sitl_config()
     params = params or load_vehicle_params()
     factor = parse_speed(speed)
@@ -115,11 +139,15 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
             compid=sitl.compid,
             tlog=tlog,
             signing_key=signing_key,
+            ground_station_flight=gcs_flight,
         )
+        autopilot = vehicle.autopilot
         if started is not None:
             started.set()
-        duration = sc.duration_s if duration_s is None else duration_s
-        end_us = round(duration * 1e6)
+        if duration_s is not None:
+            end_us = round(duration_s * 1e6)
+        else:
+            end_us = 1 << 62 if gcs_flight else round(sc.duration_s * 1e6)
         poll_every = sim.control_every  # read inputs / pace once per control tick
         truth_every = max(1, round(truth_every_s / sim.dt_s))
         wall0 = time.perf_counter()
@@ -128,7 +156,15 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
         if on_truth is not None:
             on_truth(sim.truth())
         step = sim.step
+        if gcs_flight and autopilot is not None:
+            ground = autopilot.after_step
+
+            def step() -> None:
+                sim.step()
+                ground()
+
         poll = vehicle.poll_streams
+        tick = vehicle.tick
         while sim.t_us < end_us:
             step()
             poll()
@@ -136,6 +172,7 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
             if on_truth is not None and n % truth_every == 0:
                 on_truth(sim.truth())
             if n % poll_every == 0:
+                tick()
                 if opened:
                     vehicle.poll_inputs()
                 if stop.is_set():
@@ -160,4 +197,6 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
             bad_input=vehicle.stats.bad_input,
             stopped_early=stopped,
             final_truth=sim.truth(),
+            received_estimates=vehicle.received_estimates,
+            statustexts=list(vehicle.statustexts_sent),
         )

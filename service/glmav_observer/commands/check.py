@@ -203,7 +203,10 @@ def main(duration_s: float = 10.0, rate_hz: float = 1000.0) -> int:
 
 def register(subparsers: Any) -> None:
     parser: argparse.ArgumentParser = subparsers.add_parser(
-        "check", help="run the observer bank on a built-in exact-kinematics scenario"
+        "check",
+        help="run the observer bank on a built-in exact-kinematics scenario",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
     parser.add_argument(

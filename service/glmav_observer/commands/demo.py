@@ -1,11 +1,14 @@
 """``glmav-observer demo``: the embedded default, one command from install to estimates.
 
-It writes a scenario (a climbing turn with one injected velocity-sensor fault), starts the
-simulator (``glmav-sitl``, a subprocess: MAVLink over UDP loopback is the only contract
-between the two), runs the service in this process with an in-process Zenoh peer and a
-Rerun recording (a spawned viewer when one can be started, else ``demo.rrd``), and ends
-with a table: RMSE per configuration against the simulator's truth, the fault isolated
-and when, the switch, and where the recording is. No external server, no manual step.
+It starts the simulator (``glmav-sitl run`` without a scenario, a subprocess: on the
+ground, disarmed; MAVLink over UDP loopback is the only contract between the two) and flies
+it through MAVSDK as a ground station would (:mod:`glmav_observer.commands.demo_mission`:
+a velocity-sensor fault injected through parameters, arm, takeoff, an offboard climbing
+turn). The service runs in this process with an in-process Zenoh peer and a Rerun recording
+(a spawned viewer when one can be started, else ``demo.rrd``, replaced only when the demo
+succeeds), and the demo ends with a table: RMSE per configuration against the simulator's
+truth, the fault isolated and when, the switch, and where the recording is. No external
+server, no manual step.
 """
 
 from __future__ import annotations
@@ -16,7 +19,6 @@ import math
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -24,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table
+from glmav_observer.commands.demo_mission import MissionLog, fly
 from glmav_observer.config import ConfigError, ServiceConfig, load_config
 from glmav_observer.ingest.links import Link
 from glmav_observer.publish.sink import Sink
@@ -48,7 +51,7 @@ DRAIN_MAX_S = 5.0
 class DemoResult:
     """What the demo measured (also what its table prints)."""
 
-    scenario_path: Path
+    mission: MissionLog
     fault_axis: str
     fault_kind: str
     fault_at_s: float
@@ -146,13 +149,15 @@ def run_demo(
     rrd_path: str = "demo.rrd",
     zenoh: bool = True,
     config: ServiceConfig | None = None,
-    workdir: Path | None = None,
+    sensor_profile: str | None = None,
 ) -> DemoResult:
-    """Fly the demo scenario through the simulator and the service; return what was measured.
+    """Fly the demo mission through the simulator and the service; return what was measured.
 
     ``speed``: ``auto`` (real time when a live viewer is attached, else
     :data:`AUTO_SPEED_FACTOR` times real time), ``realtime``, ``max`` or a factor, passed to
-    ``glmav-sitl run --speed``.
+    ``glmav-sitl run --speed``. ``sensor_profile`` is passed to ``glmav-sitl run
+    --sensor-profile`` when given. A recording saved to a file replaces an existing one only
+    when the demo succeeds (it is written to ``PATH.partial`` first).
     """
     if fault_axis not in ("n", "e", "d"):
         raise ValueError(f"fault axis must be n, e or d, got {fault_axis!r}")
@@ -161,12 +166,16 @@ def run_demo(
     if not 0.0 < fault_at_s < duration_s:
         raise ValueError(f"fault time {fault_at_s} s must lie inside (0, {duration_s}) s")
     config = config if config is not None else load_config(None)
-    tmp = tempfile.TemporaryDirectory(prefix="glmav-demo-") if workdir is None else None
-    work = Path(tmp.name) if tmp is not None else Path(workdir)  # type: ignore[arg-type]
-    scenario = work / "demo.toml"
     fault_end_s = min(duration_s, fault_at_s + fault_length_s)
-    text = scenario_toml(duration_s, fault_axis, fault_kind, fault_at_s, fault_end_s)
-    scenario.write_text(text, "utf-8")
+    # a file recording goes to PATH.partial, renamed over PATH once the demo has succeeded
+    final_rrd = Path(
+        rerun_mode.removeprefix("save:") if rerun_mode.startswith("save:") else rrd_path
+    )
+    partial_rrd = final_rrd.with_name(final_rrd.name + ".partial")
+    if rerun_mode.startswith("save:"):
+        rerun_mode = f"save:{partial_rrd}"
+    mission: list[MissionLog] = []
+    ok = False
 
     sinks: list[Sink] = []
     received = [0]
@@ -184,7 +193,7 @@ def run_demo(
 
             prefix = config.zenoh.prefix
             subscriber = session.declare_subscriber(f"{prefix}/*/velocity/**", count)
-        rerun_sink = _open_rerun(rerun_mode, rrd_path, config)
+        rerun_sink = _open_rerun(rerun_mode, str(partial_rrd), config)
         recording: str | None = None
         live_viewer = False
         if rerun_sink is not None:
@@ -195,7 +204,7 @@ def run_demo(
             ("realtime" if live_viewer else str(AUTO_SPEED_FACTOR)) if speed == "auto" else speed
         )
 
-        port = _free_udp_port()
+        port, gcs_port = _free_udp_port(), _free_udp_port()
         conn = f"udpin:127.0.0.1:{port}"
         link = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
         service = Service(config, sinks)
@@ -204,16 +213,38 @@ def run_demo(
             target=service.run, args=({conn: link}, stop), name="demo-service", daemon=True
         )
         worker.start()
+        # the ground station: MAVSDK listening for the simulator on its own port
+        mission_stop, listening = threading.Event(), threading.Event()
+        flight = threading.Thread(
+            target=lambda: mission.append(
+                fly(
+                    gcs_port,
+                    fault_axis=fault_axis,
+                    fault_kind=fault_kind,
+                    fault_at_s=fault_at_s,
+                    fault_end_s=fault_end_s,
+                    magnitude=FAULT_MAGNITUDE[fault_kind],
+                    stop=mission_stop,
+                    connected=listening,
+                )
+            ),
+            name="demo-mavsdk",
+            daemon=True,
+        )
+        flight.start()
+        listening.wait(10.0)
         cmd = [
-            sys.executable, "-m", "glmav_sitl.cli", "run",
-            "--scenario", str(scenario), "--duration", f"{duration_s:g}",
+            sys.executable, "-m", "glmav_sitl.cli", "run", "--duration", f"{duration_s:g}",
             "--speed", sim_speed, "--seed", str(seed),
-            "--link", f"udpout:127.0.0.1:{port}",
+            "--link", f"udpout:127.0.0.1:{port}", "--link", f"udpout:127.0.0.1:{gcs_port}",
+            *(["--sensor-profile", sensor_profile] if sensor_profile else []),
         ]  # fmt: skip
         logger.info("starting simulator", extra={"cmd": " ".join(cmd)})
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         sim_wall_s = time.perf_counter() - t0
+        mission_stop.set()
+        flight.join(timeout=30.0)
         if proc.returncode != 0:
             raise RuntimeError(f"simulator failed ({proc.returncode}): {proc.stderr.strip()}")
         # drain: wait until the service has been quiet for DRAIN_QUIET_S
@@ -226,6 +257,7 @@ def run_demo(
             stop.wait(0.05)
         stop.set()
         worker.join(timeout=5.0)
+        ok = True
     finally:
         if subscriber is not None:
             subscriber.undeclare()
@@ -236,14 +268,18 @@ def run_demo(
         else:
             for s in sinks:
                 s.close()
-        if tmp is not None:
-            tmp.cleanup()
+        if not ok:
+            partial_rrd.unlink(missing_ok=True)  # an earlier good recording stays
     summary = service.summary()
     if not summary.vehicles:
+        partial_rrd.unlink(missing_ok=True)
         raise RuntimeError("the service saw no vehicle: no MAVLink arrived on " + conn)
+    if recording is not None and recording.startswith("save:"):
+        partial_rrd.replace(final_rrd)
+        recording = f"save:{final_rrd}"
     sysid = min(summary.vehicles)
     return DemoResult(
-        scenario_path=scenario,
+        mission=mission[0] if mission else MissionLog(error="the MAVSDK thread did not end"),
         fault_axis=fault_axis,
         fault_kind=fault_kind,
         fault_at_s=fault_at_s,
@@ -268,6 +304,7 @@ def format_result(r: DemoResult) -> str:
         f"MAVLink over UDP loopback: {r.summary.messages} messages, "
         f"{r.summary.rejected_frames} rejected; {r.summary.records} records; "
         f"Zenoh: {r.zenoh_received} velocity records received by a local subscriber",
+        r.mission.summary(),
         "",
         "RMSE against truth (SIM_STATE), m/s, NED",
         f"{'config':<8}{'north':>9}{'east':>9}{'down':>9}",
@@ -332,6 +369,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--rrd", default="demo.rrd", help="where to save when no viewer starts")
     p.add_argument("--no-zenoh", action="store_true", help="do not open the Zenoh peer")
     p.add_argument("--config", default=None, help="service TOML (default: built-in settings)")
+    p.add_argument(
+        "--sensor-profile",
+        default=None,
+        help="passed to glmav-sitl run --sensor-profile (default: the simulator's)",
+    )
     p.set_defaults(func=main)
 
 
@@ -350,6 +392,7 @@ def main(args: argparse.Namespace) -> int:
             rrd_path=args.rrd,
             zenoh=not args.no_zenoh,
             config=config,
+            sensor_profile=args.sensor_profile,
         )
     except (ConfigError, ValueError, RuntimeError) as err:
         print(f"glmav-observer demo: {err}", file=sys.stderr)

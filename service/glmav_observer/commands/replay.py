@@ -24,7 +24,10 @@ PROGRESS_MIN_BYTES = 2_000_000
 
 def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
-        "replay", help="run the estimator over a .tlog, dataflash .bin/.log or .ulg (deterministic)"
+        "replay",
+        help="run the estimator over a .tlog, dataflash .bin/.log or .ulg (deterministic)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("log", metavar="LOG", help=".tlog, ArduPilot .bin/.log or PX4 .ulg")
     p.add_argument("--out", default=None, metavar="PATH", help="write records to .csv or .jsonl")

@@ -7,8 +7,12 @@ and ``--out PATH.csv|.jsonl`` override the file. ``--workers N`` (default: the n
 cores) shards vehicles by system id across N worker processes
 (:mod:`glmav_observer.fleet.workers`; ``--workers 1`` is the single-process service);
 ``--claim`` makes this service estimate only the vehicles it claims on Zenoh, so that
-several services can share one fleet (:mod:`glmav_observer.fleet.claims`). Exit codes:
-0 stopped cleanly, 2 bad configuration or link.
+several services can share one fleet (:mod:`glmav_observer.fleet.claims`).
+``--service-id NAME`` names this service on Zenoh (in every payload, its liveliness token
+and its config key; a second service with the same id on one Zenoh network refuses to
+start); ``--mavlink-out CONN`` sends the active estimate back on MAVLink
+(``[mavlink_out]``, :mod:`glmav_observer.publish.mavlink_out`). Exit codes: 0 stopped
+cleanly, 2 bad configuration or link, or a namesake already running.
 """
 
 from __future__ import annotations
@@ -30,7 +34,10 @@ logger = logging.getLogger(__name__)
 
 def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
-        "serve", help="estimate velocities from live MAVLink links and publish them"
+        "serve",
+        help="estimate velocities from live MAVLink links and publish them",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--link", action="append", default=None, metavar="CONN",
                    help=f"pymavlink connection string, repeatable (default {DEFAULT_LINK})")  # fmt: skip
@@ -44,6 +51,13 @@ def register(sub: Any) -> None:
                    help="worker processes, vehicles sharded by system id (default: cores)")  # fmt: skip
     p.add_argument("--claim", action="store_true",
                    help="estimate only the vehicles claimed on Zenoh (several services, one fleet)")  # fmt: skip
+    p.add_argument("--mavlink-out", default=None, metavar="CONN",
+                   help="send the active estimate (ODOMETRY), fault events (STATUSTEXT) and "
+                   "health (NAMED_VALUE_FLOAT) on this connection, as a component of each "
+                   "vehicle ([mavlink_out] in the config)")  # fmt: skip
+    p.add_argument("--service-id", default=None, metavar="NAME",
+                   help="this service's id on Zenoh (default: [service] id, glmav-observer); "
+                   "a second service with the same id on one Zenoh network refuses to start")  # fmt: skip
     p.set_defaults(func=main)
 
 
@@ -74,6 +88,17 @@ def main(args: argparse.Namespace) -> int:
     workers = args.workers if args.workers is not None else default_workers()
     try:
         config = load_config(args.config)
+        if args.service_id is not None:
+            from dataclasses import replace
+
+            from glmav_observer.publish.zenoh_sink import check_service_id
+
+            config = replace(config, service_id=check_service_id(args.service_id))
+        if args.mavlink_out is not None:
+            from dataclasses import replace
+
+            out = replace(config.mavlink_out, enabled=True, link=args.mavlink_out)
+            config = replace(config, mavlink_out=out)
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
         links = args.link or list(config.links) or [DEFAULT_LINK]

@@ -7,7 +7,7 @@ subset by hand, so the service needs no JSON Schema library at run time; the tes
 that it agrees with an independent implementation.
 
 Supported keywords: ``type`` (a name or a list), ``const``, ``enum``, ``properties``,
-``required``, ``additionalProperties`` (bool or schema), ``items``, ``minItems``,
+``required``, ``additionalProperties`` (bool or schema), ``items``, ``minItems``, ``minLength``,
 ``maxItems``, ``minimum``, ``maximum``, ``anyOf``. Numbers must also be finite (JSON has no
 NaN; our encoder writes null).
 """
@@ -58,7 +58,16 @@ def _object(properties: dict[str, Schema], *, required: list[str] | None = None)
     }
 
 
-VELOCITY: Schema = _object(
+#: The publishing service's id: in every Zenoh sample (absent from file records).
+_SERVICE_ID: Schema = {"type": "string", "minLength": 1}
+
+
+def _record(properties: dict[str, Schema]) -> Schema:
+    """A record's schema: ``properties`` all required, plus the optional ``service_id``."""
+    return _object({**properties, "service_id": _SERVICE_ID}, required=list(properties))
+
+
+VELOCITY: Schema = _record(
     {
         "schema": {"const": VELOCITY_SCHEMA},
         "sysid": _SYSID,
@@ -86,7 +95,7 @@ _FAULT: Schema = _object(
 
 _AXIS_STATE = {"enum": ["warmup", "ok", "suspect", "faulty", "recovering"]}
 
-HEALTH: Schema = _object(
+HEALTH: Schema = _record(
     {
         "schema": {"const": HEALTH_SCHEMA},
         "sysid": _SYSID,
@@ -108,7 +117,7 @@ HEALTH: Schema = _object(
     }
 )
 
-MEASUREMENT: Schema = _object(
+MEASUREMENT: Schema = _record(
     {
         "schema": {"const": MEASUREMENT_SCHEMA},
         "sysid": _SYSID,
@@ -120,7 +129,7 @@ MEASUREMENT: Schema = _object(
     }
 )
 
-TRUTH: Schema = _object(
+TRUTH: Schema = _record(
     {
         "schema": {"const": TRUTH_SCHEMA},
         "sysid": _SYSID,
@@ -242,6 +251,8 @@ def _check(value: Any, schema: Schema, path: str, errors: list[str]) -> None:
             errors.append(f"{where}: {value!r} < minimum {schema['minimum']!r}")
         if "maximum" in schema and value > schema["maximum"]:
             errors.append(f"{where}: {value!r} > maximum {schema['maximum']!r}")
+    if isinstance(value, str) and "minLength" in schema and len(value) < schema["minLength"]:
+        errors.append(f"{where}: {len(value)} characters < minLength {schema['minLength']}")
     if isinstance(value, list):
         if "minItems" in schema and len(value) < schema["minItems"]:
             errors.append(f"{where}: {len(value)} items < minItems {schema['minItems']}")

@@ -10,8 +10,12 @@ the returned :class:`ZenohSink`. Keys, with ``<prefix>`` (default ``glmav``):
 - liveliness ``<prefix>/@alive/<service-id>`` while the sink is open, and
   ``<prefix>/@alive/<service-id>/<sysid>`` while that vehicle's records keep coming.
 
-Payloads are ``record.to_dict()`` as compact JSON (encoding ``application/json``; the
-``schema`` field names the layout, see :mod:`glmav_observer.publish.schema`).
+Payloads are ``record.to_dict()`` plus ``service_id`` as compact JSON (encoding
+``application/json``; the ``schema`` field names the layout, see
+:mod:`glmav_observer.publish.schema`). Two services on one Zenoh network publish on the
+same ``<prefix>/<sysid>/...`` keys when they estimate the same vehicle; ``service_id``
+tells their samples apart. A service refuses to start (:class:`DuplicateServiceError`)
+when another one already holds the liveliness token of its id.
 
 ``write`` never waits on the network: publishers use congestion control DROP, so a slow
 or absent subscriber makes Zenoh drop samples instead of blocking the estimator; without
@@ -70,8 +74,18 @@ _WILDCARD_CHARS = frozenset("*$?#")
 _ZERROR_LOCATION = re.compile(r"\s+at /\S+:\d+\.?")
 
 
+#: How long a starting service waits for the liveliness token of a namesake (s): a query
+#: to a connected router is answered within milliseconds on a LAN; with no router or
+#: peer reachable it ends at once.
+DUPLICATE_CHECK_TIMEOUT_S = 2.0
+
+
 class ZenohConfigError(ValueError):
     """A Zenoh configuration that cannot be used; the message names the file and problem."""
+
+
+class DuplicateServiceError(ZenohConfigError):
+    """Another service with the same id is already on the Zenoh network."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -179,9 +193,13 @@ def encode_json(obj: Mapping[str, Any]) -> bytes:
         return json.dumps(_finite(obj), separators=(",", ":"), default=str).encode()
 
 
-def encode_payload(record: Record) -> bytes:
-    """The payload of one record: ``record.to_dict()`` as compact JSON."""
-    return encode_json(record.to_dict())
+def encode_payload(record: Record, service_id: str | None = None) -> bytes:
+    """The payload of one record: ``record.to_dict()`` (with ``service_id`` when given)
+    as compact JSON."""
+    d = record.to_dict()
+    if service_id is not None:
+        d["service_id"] = service_id
+    return encode_json(d)
 
 
 # ---------------------------------------------------------------------------------------
@@ -312,6 +330,7 @@ class ZenohSink:
         self.after_close = 0
         self.queries_answered = 0
         self._config_payload = encode_json(self.config_payload())
+        self._check_unique()
         self._queryables = [
             session.declare_queryable(state_key(self.prefix), self._on_state_query),
             session.declare_queryable(
@@ -333,6 +352,18 @@ class ZenohSink:
             config_name or EMBEDDED_DEFAULT_NAME,
             session.zid(),
         )
+
+    def _check_unique(self) -> None:
+        """Raise :class:`DuplicateServiceError` if ``@alive/<service-id>`` is already held."""
+        key = alive_key(self.prefix, self.service_id)
+        replies = self._session.liveliness().get(key, timeout=DUPLICATE_CHECK_TIMEOUT_S)
+        for reply in replies:
+            if reply.ok is not None:
+                raise DuplicateServiceError(
+                    f"another service with id {self.service_id!r} is already on this Zenoh "
+                    f"network (liveliness token {key}); give this one its own id: "
+                    "--service-id NAME or [service] id in the service TOML"
+                )
 
     @property
     def session(self) -> zenoh.Session:
@@ -369,7 +400,7 @@ class ZenohSink:
                     return
         # outside the lock: encoding and the hand-over to Zenoh (non-blocking, DROP)
         try:
-            publisher.put(encode_payload(record))
+            publisher.put(encode_payload(record, self.service_id))
         except self._zenoh.ZError as exc:
             with self._lock:
                 self.errors += 1

@@ -74,6 +74,16 @@ class Controller:
             self._active = _Active(self.setpoints[i], t_s, p_ned, yaw)
         return self._active
 
+    def command(self, sp: Setpoint, t_s: float, x: Sequence[float]) -> None:
+        """Fly ``sp`` from now on, in place of the scheduled setpoints (a ground station's
+        command). ``hold`` and ``position`` without a position hold where ``x`` is now."""
+        self._idx = len(self.setpoints)  # the schedule is over: no scheduled setpoint replaces it
+        r = rotation_from_quat(x[6], x[7], x[8], x[9])
+        yaw = math.atan2(float(r[1, 0]), float(r[0, 0]))
+        self._active = _Active(sp, t_s, (x[0], x[1], x[2]), yaw)
+        if sp.kind == "idle":
+            self._vi = [0.0, 0.0, 0.0]
+
     def update(self, t_s: float, x: Sequence[float]) -> list[float]:
         p, k = self.p, self.k
         qw, qx, qy, qz = x[6], x[7], x[8], x[9]

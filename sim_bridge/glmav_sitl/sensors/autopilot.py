@@ -357,6 +357,17 @@ class AutopilotSensors:
         pf, vf = self.p_filt_ned_m, self.v_filt_ned_mps
         return self._faults.sample(t_s, (pf[0], pf[1], pf[2]), (vf[0], vf[1], vf[2]))
 
+    @property
+    def gps_velocity_sigma_mps(self) -> float:
+        return self._sv
+
+    @gps_velocity_sigma_mps.setter
+    def gps_velocity_sigma_mps(self, sigma_mps: float) -> None:
+        self._sv = sigma_mps
+
+    def set_velocity_faults(self, faults: tuple[Fault, ...]) -> None:
+        self._faults.set_faults(faults)
+
 
 class AutopilotImu:
     """``sim.imu`` in the autopilot profile: the latest fast sample (point sampling)."""
@@ -388,3 +399,15 @@ class AutopilotPosition:
 
     def sample(self, t_s: float, p_ned_m: Vec3, v_ned_mps: Vec3) -> tuple[Vec3, Vec3]:
         return self._s.position_sample(t_s)
+
+    @property
+    def velocity_sigma_mps(self) -> float:
+        """The GPS velocity noise before the filter (a ground station's parameter)."""
+        return self._s.gps_velocity_sigma_mps
+
+    def set_velocity_sigma_mps(self, sigma_mps: float) -> None:
+        self._s.gps_velocity_sigma_mps = sigma_mps
+
+    def set_faults(self, faults: tuple[Fault, ...]) -> None:
+        """Replace the velocity faults (applied after the filter, as in ``ideal``)."""
+        self._s.set_velocity_faults(faults)

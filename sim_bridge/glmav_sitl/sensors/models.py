@@ -183,6 +183,19 @@ class PositionVelocitySensor:
         self._frozen: dict[int, float] = {}
         self._last_v: list[float] = [0.0, 0.0, 0.0]
 
+    @property
+    def velocity_sigma_mps(self) -> float:
+        return self._sv
+
+    def set_velocity_sigma_mps(self, sigma_mps: float) -> None:
+        """Change the velocity noise at run time (a ground station's parameter)."""
+        self._sv = sigma_mps
+
+    def set_faults(self, faults: tuple[Fault, ...]) -> None:
+        """Replace the velocity faults (a ground station's fault injection)."""
+        self._faults = tuple(f for f in faults if f.sensor == "velocity")
+        self._frozen.clear()
+
     def sample(self, t_s: float, p_ned_m: Vec3, v_ned_mps: Vec3) -> tuple[Vec3, Vec3]:
         if self._sp > 0.0 or self._sv > 0.0:
             n = self._rng.standard_normal(6)

@@ -44,6 +44,16 @@ def test_demo_isolates_the_fault_and_meets_the_daemon_bounds(
     assert rejected == 0
     assert records > 4 * 22 * 100  # five velocity records per estimator update, and more
 
+    # MAVSDK flew it: the fault by parameters, armed, took off, the offboard turn, no error
+    fl = re.search(r"^flown by MAVSDK: (.*)$", out, re.MULTILINE)
+    assert fl is not None, out
+    steps = fl.group(1)
+    assert "stopped:" not in steps, steps
+    for step in (f"fault {kind} on v{axis} set by parameters", "armed", "takeoff to 10 m"):
+        assert step in steps
+    turn = re.search(r"offboard climbing turn from 5 m \(t = ([\d.]+) s\)", steps)
+    assert turn is not None and float(turn.group(1)) < 9.0, steps  # moving before the fault
+
     # Zenoh: the local subscriber saw the published velocity records
     z = re.search(r"Zenoh: (\d+) velocity records received", out)
     assert z is not None and int(z.group(1)) > 0.9 * 22 * 250, out
@@ -79,3 +89,19 @@ def test_demo_isolates_the_fault_and_meets_the_daemon_bounds(
     rrd = tmp_path / "demo.rrd"
     assert f"recording: {rrd}" in out
     assert rrd.stat().st_size > 100_000  # ~4 MB for 25 s; a header-only file is a few kB
+
+
+@pytest.mark.timeout(120)
+def test_a_failed_demo_keeps_the_previous_recording(tmp_path: Path) -> None:
+    rrd = tmp_path / "demo.rrd"
+    rrd.write_bytes(b"a good recording")
+    # a simulator that cannot start (an unknown sensor profile): exit 2, the reason, no traceback
+    proc = subprocess.run(
+        [sys.executable, "-m", "glmav_observer.cli", "demo", "--rerun", f"save:{rrd}",
+         "--sensor-profile", "no-such-profile", "--no-zenoh"],
+        capture_output=True, text=True, timeout=100, cwd=tmp_path, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "simulator failed" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    assert rrd.read_bytes() == b"a good recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.rrd"]  # no partial left

@@ -134,7 +134,8 @@ def test_echo_prints_json_lines_equal_to_the_records(
     for line in lines:
         assert line["key"] == "glmav/3/velocity/c2"
         assert line["encoding"] == "application/json"
-        assert line["value"] == velocity(3, "c2", line["value"]["seq"]).to_dict()
+        want = {**velocity(3, "c2", line["value"]["seq"]).to_dict(), "service_id": "echo-svc"}
+        assert line["value"] == want
     seqs = [line["value"]["seq"] for line in lines]
     assert seqs == list(range(seqs[0], seqs[0] + 20))  # consecutive: none lost, in order
     assert query.returncode == 0, query.stderr

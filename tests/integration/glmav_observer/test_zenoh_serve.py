@@ -46,8 +46,9 @@ def _service_toml(tmp: Path) -> Path:
 
 
 def _row_of(value: dict[str, Any]) -> dict[str, Any]:
-    """The velocity payload as the file sink's flat row (records.flatten's names)."""
-    row = {k: v for k, v in value.items() if not isinstance(v, list)}
+    """The velocity payload as the file sink's flat row (records.flatten's names; the
+    Zenoh-only ``service_id`` left out)."""
+    row = {k: v for k, v in value.items() if not isinstance(v, list) and k != "service_id"}
     for name, axes in (("v_body_mps", "uvw"), ("v_ned_mps", "ned")):
         for axis, x in zip(axes, value[name], strict=True):
             row[f"{name}_{axis}"] = x
@@ -161,6 +162,7 @@ def test_serve_publishes_what_it_estimates_from_the_sitl(
     for key, encoding, value in samples:
         assert encoding == "application/json"
         assert validate(value) == [], (key, validate(value))
+        assert value["service_id"] == "e2e-svc", key  # in every payload
     assert validate(state) == [] and validate(config) == []
     assert config["decimation"]["velocity"] == DECIMATION["velocity"]
     assert config["config"]["service_id"] == "e2e-svc"
@@ -276,3 +278,81 @@ def test_serve_survives_a_router_restart_and_resumes_publishing(
     assert max(gaps) < 0.05
     # and what was published before the kill and after the restart is part of it
     assert set(t_active) <= set(t_written)
+
+
+def test_two_services_on_one_router_are_told_apart_and_a_namesake_refuses(
+    tmp_path: Path, router: RouterProcess, free_udp_port: Callable[[], int]
+) -> None:
+    viewer = client_session(router.port)
+    samples: list[dict[str, Any]] = []
+    viewer.declare_subscriber(
+        "glmav/*/velocity/active", lambda s: samples.append(json.loads(s.payload.to_bytes()))
+    )
+    alive: list[str] = []
+    viewer.liveliness().declare_subscriber(
+        "glmav/@alive/*", lambda s: alive.append(str(s.key_expr)), history=True
+    )
+    zenoh_config = client_config(tmp_path / "client.json5", router.port)
+    ports = {"svc-a": free_udp_port(), "svc-b": free_udp_port()}
+    services = {
+        sid: subprocess.Popen(
+            [
+                *CLI,
+                "serve",
+                "--zenoh",
+                str(zenoh_config),
+                "--service-id",
+                sid,
+                "--link",
+                f"udpin:127.0.0.1:{port}",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for sid, port in ports.items()
+    }
+    try:
+        assert wait_until(lambda: {"glmav/@alive/svc-a", "glmav/@alive/svc-b"} <= set(alive), 30)
+        # a third service with svc-a's id: refused with the reason, exit 2, nothing published
+        dup = subprocess.run(
+            [*CLI, "serve", "--zenoh", str(zenoh_config), "--service-id", "svc-a",
+             "--link", f"udpin:127.0.0.1:{free_udp_port()}"],
+            capture_output=True, text=True, timeout=60, check=False,
+        )  # fmt: skip
+        assert dup.returncode == 2, dup.stderr
+        assert "another service with id 'svc-a' is already on this Zenoh network" in dup.stderr
+        assert "Traceback" not in dup.stderr
+        # one simulator, the same vehicle (sysid 1) streamed to both services
+        sitl = subprocess.run(
+            [SITL, "run", "--scenario", "hover", "--duration", "4", "--speed", "4",
+             "--link", f"udpout:127.0.0.1:{ports['svc-a']}",
+             "--link", f"udpout:127.0.0.1:{ports['svc-b']}"],
+            check=False, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert sitl.returncode == 0, sitl.stderr
+        # both streams arrive on glmav/1/velocity/active (~4 s x 250 Hz each)
+        assert wait_until(
+            lambda: (
+                min(sum(1 for v in samples if v["service_id"] == sid) for sid in ports)
+                > 0.9 * 4 * 250
+            ),
+            20,
+            period_s=0.2,
+        )
+        for proc in services.values():
+            proc.send_signal(signal.SIGINT)
+        for proc in services.values():
+            proc.communicate(timeout=30)
+    finally:
+        for proc in services.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    viewer.close()
+    assert all(p.returncode == 0 for p in services.values())
+    # on one key, interleaved; separated by service_id each stream is complete and in order
+    assert {v["service_id"] for v in samples} == set(ports)
+    for sid in ports:
+        seqs = [v["seq"] for v in samples if v["service_id"] == sid]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), sid

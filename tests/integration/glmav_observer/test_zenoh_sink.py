@@ -137,7 +137,7 @@ def test_every_key_arrives_valid_and_equal_to_the_records(sink: ZenohSink, viewe
         by_key[key].append(value)
     want_by_key: dict[str, list[Any]] = defaultdict(list)
     for key, record in expected:
-        want_by_key[key].append(record.to_dict())
+        want_by_key[key].append({**record.to_dict(), "service_id": "test-svc"})
     # per key, in order, the exact values the sink was given (JSON round-trips floats exactly)
     assert by_key == want_by_key
     assert sink.stats()["errors"] == 0

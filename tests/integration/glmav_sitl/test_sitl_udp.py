@@ -83,8 +83,11 @@ def test_set_message_interval_and_request_message_over_udp(
             gs.command_long(3, 512, 148.0)  # REQUEST_MESSAGE AUTOPILOT_VERSION
             av = gs.wait_for("AUTOPILOT_VERSION", 2.0)
             assert av.capabilities & mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-            gs.command_long(3, 176, 1.0)  # DO_SET_MODE: not supported
+            gs.command_long(3, 176, 1.0, 4.0, 5.0)  # DO_SET_MODE RTL: a scenario is flying
             ack = gs.wait_for("COMMAND_ACK", 2.0, lambda m: m.command == 176)
+            assert ack.result == mavlink2.MAV_RESULT_DENIED
+            gs.command_long(3, 183, 1.0, 1500.0)  # DO_SET_SERVO: not supported
+            ack = gs.wait_for("COMMAND_ACK", 2.0, lambda m: m.command == 183)
             assert ack.result == mavlink2.MAV_RESULT_UNSUPPORTED
             assert gs.peer is not None
             gs.sock.sendto(b"\xfd\xff" + os.urandom(64), gs.peer)  # garbage must not hurt

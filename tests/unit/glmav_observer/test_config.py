@@ -19,6 +19,8 @@ def test_shipped_file_documents_the_defaults() -> None:
     assert shipped.estimation == defaults.estimation
     assert shipped.zenoh == defaults.zenoh
     assert shipped.rerun == defaults.rerun
+    assert shipped.mavlink_out == defaults.mavlink_out
+    assert shipped.mavlink_out.enabled is False  # MAVLink output: opt-in
     assert shipped.zenoh.enabled is False  # serve: Zenoh off unless asked
     assert shipped.rerun.mode == "off"
 
@@ -36,6 +38,11 @@ def test_shipped_file_documents_the_defaults() -> None:
         ({"rerun": {"mode": "tv"}}, "rerun.mode", "expected off, spawn"),
         ({"service": {"out": "x.txt"}}, "service.out", ".csv or .jsonl"),
         ({"ingest": {"max_vehicles": True}}, "ingest.max_vehicles", "integer"),
+        ({"mavlink_out": {"component_id": 190}}, "mavlink_out.component_id", "ground station"),
+        ({"mavlink_out": {"system_id": 255}}, "mavlink_out.system_id", "255 is a GCS"),
+        ({"mavlink_out": {"enabled": True}}, "mavlink_out.link", "required when"),
+        ({"mavlink_out": {"rate_hz": 0.0}}, "mavlink_out.rate_hz", r"in \(0, 1000\]"),
+        ({"mavlink_out": {"odometri": True}}, "mavlink_out.odometri", "unknown key"),
     ],
 )
 def test_bad_values_name_file_key_and_reason(doc: dict, key: str, reason: str) -> None:

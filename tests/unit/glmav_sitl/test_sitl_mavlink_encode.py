@@ -112,7 +112,8 @@ def test_commands_answered_unsupported_or_ignored() -> None:
     sim, v, link = _vehicle()
     link.inbox += [
         _gcs_command(512, 148.0),  # REQUEST_MESSAGE AUTOPILOT_VERSION
-        _gcs_command(400, 1.0),  # ARM: not supported by the simulator
+        _gcs_command(400, 1.0),  # ARM during a scenario flight: denied, with a STATUSTEXT
+        _gcs_command(183, 1.0, 1500.0),  # DO_SET_SERVO: not supported by the simulator
         _gcs_command(511, 9999.0, 1000.0),  # a message we do not stream
         _gcs_command(510, 105.0),  # GET_MESSAGE_INTERVAL HIGHRES_IMU
         _gcs_command(400, 1.0, target=9),  # another vehicle's: ignored, no ACK
@@ -124,7 +125,8 @@ def test_commands_answered_unsupported_or_ignored() -> None:
     acks = [(m.command, m.result) for m in msgs if m.get_type() == "COMMAND_ACK"]
     assert acks == [
         (512, mavlink2.MAV_RESULT_ACCEPTED),
-        (400, mavlink2.MAV_RESULT_UNSUPPORTED),
+        (400, mavlink2.MAV_RESULT_DENIED),
+        (183, mavlink2.MAV_RESULT_UNSUPPORTED),
         (511, mavlink2.MAV_RESULT_UNSUPPORTED),
         (510, mavlink2.MAV_RESULT_ACCEPTED),
     ]
@@ -132,7 +134,9 @@ def test_commands_answered_unsupported_or_ignored() -> None:
     assert av.capabilities & mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     (mi,) = [m for m in msgs if m.get_type() == "MESSAGE_INTERVAL"]
     assert (mi.message_id, mi.interval_us) == (105, 4000)
-    assert v.stats.bad_input > 0 and v.stats.commands == 4
+    texts = [m.text for m in msgs if m.get_type() == "STATUSTEXT"]
+    assert texts == ["scenario flight: commands refused"]
+    assert v.stats.bad_input > 0 and v.stats.commands == 5
     # and the vehicle still streams afterwards
     link.out.clear()
     sim.step()

@@ -195,3 +195,15 @@ def test_state_payload_nests_the_record_schemas() -> None:
     state["health"] = {"schema": "glmav.health/1"}
     (error,) = validate(state)
     assert error.startswith("health: matches none of anyOf")
+
+
+def test_zenoh_payloads_carry_the_service_id_and_it_is_checked() -> None:
+    record = VelocityRecord(1, "full", 0.5, (1.0, 2.0, 3.0), (3.0, 2.0, 1.0), None, "ok", 7)
+    payload = json.loads(encode_payload(record, "svc-a"))
+    assert payload == {**record.to_dict(), "service_id": "svc-a"}
+    assert validate(payload) == []
+    jsonschema.validate(payload, SCHEMAS["glmav.velocity/1"])
+    for bad in ("", 3):
+        wrong = {**payload, "service_id": bad}
+        assert len(validate(wrong)) == 1
+        assert not jsonschema.Draft202012Validator(SCHEMAS["glmav.velocity/1"]).is_valid(wrong)
