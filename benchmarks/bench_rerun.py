@@ -38,7 +38,7 @@ from benchmarks.common import format_goals, format_table, goal, main_for, time_p
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.framing import iter_tlog
-from glmav_observer.publish.rerun_sink import (
+from glmav_observer.publish.rerun import (
     RerunSink,
     open_rerun_sink,
     read_recording,

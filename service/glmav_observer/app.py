@@ -399,7 +399,7 @@ def open_sinks(
             )
         mode = rerun_mode if rerun_mode is not None else config.rerun.mode
         if mode != "off":
-            from glmav_observer.publish.rerun_sink import open_rerun_sink
+            from glmav_observer.publish.rerun import open_rerun_sink
 
             sinks.append(
                 open_rerun_sink(
