@@ -73,13 +73,14 @@ def flight(duration_s: float, *, sysid: int = 1, fault_t_s: float = 6.0) -> list
         isolated = t >= fault_t_s + 0.5
         for c in CONFIGS:
             drift = 0.4 * bias * min(t - fault_t_s, 0.5) if c != "c2" else 0.0
-            est = v_ned + offsets[c] + np.array([drift, 0.0, 0.0])
+            est = v_ned + offsets.get(c, 0.0) + np.array([drift, 0.0, 0.0])
             vb = e_exact(euler).T @ est
             out.append(
                 VelocityRecord(sysid, c, t, tuple(vb), tuple(est), None, "ok", k, None, None)  # type: ignore[arg-type]
             )
         src = "c2" if isolated else "full"
-        active = next(r for r in out[-4:] if isinstance(r, VelocityRecord) and r.config == src)
+        bank = out[-len(CONFIGS) :]
+        active = next(r for r in bank if isinstance(r, VelocityRecord) and r.config == src)
         out.append(
             VelocityRecord(
                 sysid,

@@ -74,6 +74,10 @@ class RerunSink:
     ) -> None:
         if decimation < 1:
             raise ValueError(f"rerun decimation must be >= 1, got {decimation}")
+        if not configs or len(set(configs)) != len(configs) or "active" in configs:
+            raise ValueError(
+                f"rerun configs must be distinct configuration names, not 'active', got {configs!r}"
+            )
         self.mode = mode
         self.requested_mode = requested_mode or mode
         self.grpc_url = grpc_url

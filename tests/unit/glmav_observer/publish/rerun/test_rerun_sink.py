@@ -376,6 +376,9 @@ def test_configurations_are_the_ones_given(tmp_path: Path) -> None:
     assert bank_u["Scalars:scalars"] == [[0.0, 1.0, 2.0, 3.0, 4.0]] * 2
     assert rec["/vehicle/1/active/v_body/u"]["Scalars:scalars"] == [[5.0]] * 2
     assert rec["/vehicle/1/bank/v_body/v"]["Scalars:scalars"] == [[0.0] * 5, [1.0] * 5]
+    for bad in ((), ("full", "full"), ("full", "active")):
+        with pytest.raises(ValueError, match="distinct configuration names"):
+            open_rerun_sink("off", configs=bad)
 
 
 def test_active_line_is_the_widest_of_its_plots(tmp_path: Path) -> None:
