@@ -27,6 +27,7 @@ import numpy.typing as npt
 from glmav_observer.estimation.observer import e_exact
 from glmav_observer.publish.rerun.paths import (
     AXIS_STATE_INDEX,
+    BODY_AXES,
     ISOLATED_AXIS_INDEX,
     active_path,
     axis_paths,
@@ -359,7 +360,7 @@ class RecordBuffer:
             "sigma_lost": _Group([f"{active_path(sysid)}/sigma_lost_mps"], [1]),
             "meas_ned": _Group([f"{measurement_path(sysid)}/v_ned/{a}" for a in NED_AXES], [1] * 3),
             "meas_body": _Group(
-                [f"{measurement_path(sysid)}/v_body/{a}" for a in ("u", "v", "w")], [1] * 3
+                [f"{measurement_path(sysid)}/v_body/{a}" for a in BODY_AXES], [1] * 3
             ),
             "truth": _Group(axis_paths(truth_path(sysid)), [1] * 6),
             "health": _Group(
