@@ -144,7 +144,7 @@ def _received_bytes(records: list[Record], tmp: Path) -> int:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:  # the receiver has written everything
             try:
-                got = read_recording(out).get("/vehicle/1/bank/v_body/u", {})
+                got = read_recording(out).get("/vehicle/1/estimate/v_body/u", {})
                 if len(got.get("Scalars:scalars", [])) >= n_full:
                     break
             except Exception:

@@ -184,14 +184,14 @@ def test_connect_streams_decimated_records(
     assert sink.stats.batches_dropped == 0
     full_u = [r for r in records if isinstance(r, VelocityRecord) and r.config == "full"]
     expected = full_u[::5]  # every 5th record per configuration (decimation 5)
-    entity = "/vehicle/1/bank/v_body/u"
+    entity = "/vehicle/1/estimate/v_body/u"
     _wait_for(lambda: _rows(out, entity) == len(expected), 20, "all rows at the receiver")
     proc.send_signal(signal.SIGINT)  # the receiver finishes its file
     proc.wait(20)
     rec = read_recording(out)
     got = rec[entity]
     np.testing.assert_allclose(got[TIMELINE], [r.t_boot_s for r in expected], atol=1e-9)
-    # instance 0 of the bank's axis entities is the full configuration
+    # instance 0 of the estimate entities is the full configuration
     assert [v[0] for v in got["Scalars:scalars"]] == [r.v_body_mps[0] for r in expected]
     truth = [r for r in records if isinstance(r, TruthRecord)]
     assert len(rec["/vehicle/1/truth/v_ned/n"]["Scalars:scalars"]) == len(truth)  # not decimated
@@ -257,7 +257,7 @@ def test_serve_binds_loopback_only_and_late_viewer_gets_data(
         )
         try:
             n_full = sum(1 for r in records if isinstance(r, VelocityRecord) and r.config == "full")
-            entity = "/vehicle/1/bank/v_ned/e"
+            entity = "/vehicle/1/estimate/v_ned/e"
             _wait_for(lambda: _rows(late, entity) == n_full, 30, "the late viewer's data")
         finally:
             proc.send_signal(signal.SIGINT)

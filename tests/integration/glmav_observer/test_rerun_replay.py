@@ -52,8 +52,8 @@ def test_replay_rrd_holds_the_records(tmp_path: Path) -> None:
         chunk.timeline_names[0] for chunk in RrdReader(rrd).stream() if chunk.timeline_names
     } == {TIMELINE}
 
-    # the bank: per axis one entity, instance i = CONFIGS[i], exactly the records' values
-    bank_u = rec["/vehicle/1/bank/v_body/u"]
+    # the estimates: per axis one entity, instance i = CONFIGS[i], exactly the records' values
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]
     full = by_schema["velocity/full"]
     assert len(bank_u[TIMELINE]) == len(full)
     np.testing.assert_allclose(bank_u[TIMELINE], _col(full, "t_boot_s"), rtol=0, atol=T_TOL_S)
@@ -61,7 +61,8 @@ def test_replay_rrd_holds_the_records(tmp_path: Path) -> None:
         expected = _col(by_schema[f"velocity/{config}"], "v_body_mps_u")
         assert [v[i] for v in bank_u["Scalars:scalars"]] == expected
     active = by_schema["velocity/active"]
-    got_n = [v[0] for v in rec["/vehicle/1/active/v_ned/n"]["Scalars:scalars"]]
+    # the active estimate: the last instance, after the configurations
+    got_n = [v[-1] for v in rec["/vehicle/1/estimate/v_ned/n"]["Scalars:scalars"]]
     assert got_n == _col(active, "v_ned_mps_n")
 
     truth = by_schema["glmav.truth/1"]

@@ -16,10 +16,10 @@ from glmav_observer.publish.rerun.paths import (
     WIDTH_TRUTH,
     active_path,
     axis_paths,
-    bank_path,
     config_colors,
     config_label,
     error_path,
+    estimate_path,
     health_path,
     lost_axis_legend,
     measurement_path,
@@ -56,8 +56,7 @@ def build_blueprint(sysids: Sequence[int], configs: Sequence[str] = CONFIGS) -> 
 
     tabs: list[rrb.Container] = []
     for sysid in sysids:
-        # the active estimate last: drawn after the bank where the viewer keeps that order
-        sources = [bank_path(sysid), measurement_path(sysid), truth_path(sysid), active_path(sysid)]
+        sources = [estimate_path(sysid), measurement_path(sysid), truth_path(sysid)]
 
         def axis_view(frame: str, axis: str, sources: list[str] = sources) -> rrb.TimeSeriesView:
             return series(f"{axis} ({frame}, m/s)", [f"{s}/{frame}/{axis}" for s in sources])
@@ -119,26 +118,20 @@ def log_styles(rec: rr.RecordingStream, sysid: int, configs: Sequence[str] = CON
     """Static names, colours and widths of one vehicle's series, and its 3D entities.
 
     The configurations are named with the axis they have lost (``c1 (d lost)``); the
-    active estimate is wider than every other line of its plots (paths.WIDTH_ACTIVE).
+    active estimate, their last instance, is wider than every other line of its plots
+    (paths.WIDTH_ACTIVE).
     """
     import rerun as rr
 
-    labels = [config_label(c) for c in configs]
-    bank_style = rr.SeriesLines(
-        names=labels, colors=config_colors(configs), widths=[WIDTH_CONFIG] * len(configs)
-    )
-    for p in axis_paths(bank_path(sysid)):
-        rec.log(p, bank_style, static=True)
-    active_style = rr.SeriesLines(names=ACTIVE, colors=COLORS[ACTIVE], widths=WIDTH_ACTIVE)
-    for p in axis_paths(active_path(sysid)):
-        rec.log(p, active_style, static=True)
-    err_style = rr.SeriesLines(
-        names=[*labels, ACTIVE],
+    # the configurations then the active estimate: the instances of the estimate and
+    # error entities
+    style = rr.SeriesLines(
+        names=[*(config_label(c) for c in configs), ACTIVE],
         colors=[*config_colors(configs), COLORS[ACTIVE]],
         widths=[WIDTH_CONFIG] * len(configs) + [WIDTH_ACTIVE],
     )
-    for p in axis_paths(error_path(sysid)):
-        rec.log(p, err_style, static=True)
+    for p in axis_paths(estimate_path(sysid)) + axis_paths(error_path(sysid)):
+        rec.log(p, style, static=True)
     meas_style = rr.SeriesPoints(
         names="measurement", colors=COLORS["measurement"], marker_sizes=1.5
     )

@@ -31,10 +31,10 @@ from glmav_observer.publish.rerun.paths import (
     ISOLATED_AXIS_INDEX,
     active_path,
     axis_paths,
-    bank_path,
     config_index,
     config_label,
     error_path,
+    estimate_path,
     health_path,
     measurement_path,
     status_path,
@@ -518,14 +518,11 @@ class RecordBuffer:
         if final:
             self._commit_update(veh)
         items: list[Item] = [g.take() for g in veh.groups.values() if g.t]
-        n_cfg = self._n_est - 1
         if veh.est_t:
             est = np.asarray(veh.est_rows, dtype=np.float64).reshape(-1, self._n_est, 6)
-            bank = est[:, :n_cfg, :].transpose(0, 2, 1)  # (rows, axis, config)
-            cols = [(p, bank[:, j, :]) for j, p in enumerate(axis_paths(bank_path(veh.sysid)))]
-            cols += [
-                (p, est[:, -1, j : j + 1]) for j, p in enumerate(axis_paths(active_path(veh.sysid)))
-            ]
+            by_axis = est.transpose(0, 2, 1)  # (rows, axis, configurations then active)
+            paths = axis_paths(estimate_path(veh.sysid))
+            cols = [(p, by_axis[:, j, :]) for j, p in enumerate(paths)]
             items.append(ScalarRows(np.asarray(veh.est_t, dtype=np.float64), cols))
             veh.est_t, veh.est_rows = [], []
         err = self._errors(veh, final=final)

@@ -40,8 +40,9 @@ EXTRA_COLORS: tuple[Rgb, ...] = (
 AXIS_COLORS: tuple[Rgb, ...] = ((228, 26, 28), (55, 126, 184), (77, 175, 74))
 
 #: Line widths (UI points). The selected estimate coincides with one of the bank's lines
-#: and with the truth; it is drawn wider than all of them so that, whatever order the
-#: viewer draws series in, a band of it shows on both sides of any line drawn over it.
+#: and with the truth. It is the last instance of the estimate entities (drawn after the
+#: configurations) and wider than every other line, so that whatever the viewer draws over
+#: it, a band of it shows on both sides.
 WIDTH_CONFIG = 1.5
 WIDTH_TRUTH = 1.5
 WIDTH_ACTIVE = 4.0
@@ -88,12 +89,14 @@ def vehicle_path(sysid: int) -> str:
     return f"/vehicle/{sysid}"
 
 
-def bank_path(sysid: int) -> str:
-    """The bank's estimates: each axis entity has one instance per configuration."""
-    return f"{vehicle_path(sysid)}/bank"
+def estimate_path(sysid: int) -> str:
+    """The estimates: each axis entity has one instance per configuration of the bank, then
+    the active estimate (one chunk per axis and flush for all of them; drawn last)."""
+    return f"{vehicle_path(sysid)}/estimate"
 
 
 def active_path(sysid: int) -> str:
+    """The active estimate's own series (``sigma_lost_mps``)."""
     return f"{vehicle_path(sysid)}/{ACTIVE}"
 
 

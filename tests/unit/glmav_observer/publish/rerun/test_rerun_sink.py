@@ -180,17 +180,18 @@ def test_save_roundtrip(tmp_path: Path) -> None:
 
     rec = read_recording(path)
     # the bank: one entity per axis, one instance per configuration (full, c1, c2, c3)
-    bank_u = rec["/vehicle/1/bank/v_body/u"]
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]
     np.testing.assert_allclose(bank_u[TIMELINE], [0.005, 0.01, 0.015], rtol=0, atol=T_TOL_S)
-    expected_u = [[1.0 + k + 0.1 * i for i in range(4)] for k in range(3)]
+    expected_u = [[1.0 + k + 0.1 * i for i in range(5)] for k in range(3)]
     assert bank_u["Scalars:scalars"] == expected_u  # float64 stored as is
     # each c-configuration is named with the axis it has lost (records.LOST_AXIS_OF_CONFIG)
     assert bank_u["static:SeriesLines:names"] == [
-        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)"]
+        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "active"]
     ]
-    assert rec["/vehicle/1/bank/v_body/w"]["Scalars:scalars"] == [[3.0] * 4] * 3
-    assert rec["/vehicle/1/active/v_ned/d"]["Scalars:scalars"] == [[33.0]] * 3
-    assert rec["/vehicle/1/active/v_body/u"]["Scalars:scalars"] == [[1.4], [2.4], [3.4]]
+    assert rec["/vehicle/1/estimate/v_body/w"]["Scalars:scalars"] == [[3.0] * 5] * 3
+    # the active estimate is the last instance
+    assert [v[-1] for v in rec["/vehicle/1/estimate/v_ned/d"]["Scalars:scalars"]] == [33.0] * 3
+    assert [v[-1] for v in bank_u["Scalars:scalars"]] == [1.4, 2.4, 3.4]
     # est - truth with truth linearly interpolated: at t the truth u is 10 t, n is 100 t
     err_u = rec["/vehicle/1/error/v_body/u"]
     assert err_u["static:SeriesLines:names"] == [
@@ -262,9 +263,9 @@ def test_save_mode_batches_all_rows_and_drops_unbracketed_errors(tmp_path: Path)
     sink.close()
     rec = read_recording(path)
     # decimation applies to live modes only: a saved log has every record
-    bank_u = rec["/vehicle/1/bank/v_body/u"]["Scalars:scalars"]
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]["Scalars:scalars"]
     assert [v[0] for v in bank_u] == list(map(float, range(n)))  # the full configuration
-    assert all(math.isnan(x) for v in bank_u for x in v[1:])  # c1, c2, c3 never sent
+    assert all(math.isnan(x) for v in bank_u for x in v[1:])  # c1, c2, c3, active never sent
     assert sink.stats.batches_sent >= 20  # flushed as it went, not all at close
     err_t = rec["/vehicle/1/error/v_body/u"][TIMELINE]
     k_last_truth = 495  # the last k with k % 5 == 0 and k / 250 < 2
@@ -295,7 +296,7 @@ def test_spawn_without_display_falls_back_to_save(
     assert f"Open it with: rerun {path}" in caplog.text
     sink.write(_vel("c1", 1.5, (4.0, 5.0, 6.0)))
     sink.close()
-    w = read_recording(path)["/vehicle/1/bank/v_body/w"]["Scalars:scalars"]
+    w = read_recording(path)["/vehicle/1/estimate/v_body/w"]["Scalars:scalars"]
     assert w[0][1] == 6.0  # c1 is the second instance
     with pytest.raises(RerunModeError, match="no DISPLAY or WAYLAND_DISPLAY"):
         open_rerun_sink("spawn", fallback_save_path=None, environ={})
@@ -367,15 +368,14 @@ def test_configurations_are_the_ones_given(tmp_path: Path) -> None:
             sink.write(VelocityRecord(1, c, t, v, v, None, "ok", k))
     sink.close()
     rec = read_recording(path)
-    bank_u = rec["/vehicle/1/bank/v_body/u"]
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]
     assert bank_u["static:SeriesLines:names"] == [
-        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "aided"]
+        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "aided", "active"]
     ]
-    assert len(bank_u["static:SeriesLines:colors"][0]) == 5  # one colour each, all distinct
-    assert len(set(bank_u["static:SeriesLines:colors"][0])) == 5
-    assert bank_u["Scalars:scalars"] == [[0.0, 1.0, 2.0, 3.0, 4.0]] * 2
-    assert rec["/vehicle/1/active/v_body/u"]["Scalars:scalars"] == [[5.0]] * 2
-    assert rec["/vehicle/1/bank/v_body/v"]["Scalars:scalars"] == [[0.0] * 5, [1.0] * 5]
+    assert len(bank_u["static:SeriesLines:colors"][0]) == 6  # one colour each, all distinct
+    assert len(set(bank_u["static:SeriesLines:colors"][0])) == 6
+    assert bank_u["Scalars:scalars"] == [[0.0, 1.0, 2.0, 3.0, 4.0, 5.0]] * 2  # active last
+    assert rec["/vehicle/1/estimate/v_body/v"]["Scalars:scalars"] == [[0.0] * 6, [1.0] * 6]
     for bad in ((), ("full", "full"), ("full", "active")):
         with pytest.raises(ValueError, match="distinct configuration names"):
             open_rerun_sink("off", configs=bad)
@@ -390,9 +390,8 @@ def test_active_line_is_the_widest_of_its_plots(tmp_path: Path) -> None:
     sink.close()
     rec = read_recording(path)
     for axis in ("v_body/u", "v_ned/d"):
-        active = rec[f"/vehicle/1/active/{axis}"]["static:SeriesLines:widths"][0]
-        others = [
-            *rec[f"/vehicle/1/bank/{axis}"]["static:SeriesLines:widths"][0],
-            *rec[f"/vehicle/1/truth/{axis}"]["static:SeriesLines:widths"][0],
-        ]
-        assert active[0] >= 2 * max(others), (active, others)  # >= 1 px band each side
+        *configs, active = rec[f"/vehicle/1/estimate/{axis}"]["static:SeriesLines:widths"][0]
+        names = rec[f"/vehicle/1/estimate/{axis}"]["static:SeriesLines:names"][0]
+        assert names[-1] == "active"  # the last instance: drawn after the configurations
+        others = [*configs, *rec[f"/vehicle/1/truth/{axis}"]["static:SeriesLines:widths"][0]]
+        assert active >= 2 * max(others), (active, others)  # >= 1 px band each side
