@@ -3,9 +3,10 @@
 Rows are buffered per group of entities that share time stamps. A flush turns them into
 :class:`Batch` objects of column items (:class:`ScalarRows`, :class:`PoseRows`, ...);
 the sender makes one ``rr.send_columns`` call, one Rerun chunk, per entity and item.
-A chunk costs about the same whatever its rows, so the configurations of the bank are
-instances of one entity per axis (one line each in the plot) rather than entities of
-their own, and the flush period (live) or the rows per flush (save) set the cost.
+A chunk costs about the same whatever its rows, so the configurations of the bank and
+the active estimate are instances of one entity per axis (one line each in the plot)
+rather than entities of their own, and the flush period (live) or the rows per flush
+(save) set the cost.
 
 The estimates of one estimator update (every configuration and the active one, at one
 vehicle time) form one row; live modes keep every ``decimation``-th update. Errors
@@ -276,8 +277,8 @@ class _Vehicle:
 class RecordBuffer:
     """Buffers records per vehicle and hands out :class:`Batch` objects to send.
 
-    ``configs``: the bank's configuration names in bank order (instances of the bank
-    entities, columns of the error entities). ``live``: flush every ``flush_period_s``
+    ``configs``: the bank's configuration names in bank order (the first instances of
+    the estimate and error entities; the active estimate is the last). ``live``: flush every ``flush_period_s``
     of vehicle time and keep every ``decimation``-th estimator update; otherwise flush
     every ``batch_rows`` rows and keep everything.
     """
