@@ -587,7 +587,7 @@ def open_sinks(
             sinks.append(MavlinkOutSink(config.mavlink_out, signing_key=config.signing_key))
         mode = rerun_mode if rerun_mode is not None else config.rerun.mode
         if mode != "off":
-            from glmav_observer.publish.rerun_sink import open_rerun_sink
+            from glmav_observer.publish.rerun import open_rerun_sink
 
             sinks.append(
                 open_rerun_sink(

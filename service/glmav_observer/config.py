@@ -402,7 +402,7 @@ def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:
 
 def check_rerun_mode(mode: str) -> str | None:
     """None if ``mode`` is a valid ``--rerun`` value, else the reason (the sink's parser)."""
-    from glmav_observer.publish.rerun_sink import RerunModeError, parse_rerun_mode
+    from glmav_observer.publish.rerun.mode import RerunModeError, parse_rerun_mode
 
     try:
         parse_rerun_mode(mode)

@@ -125,7 +125,7 @@ def _free_udp_port() -> int:
 def _open_rerun(mode: str, rrd_path: str, config: ServiceConfig) -> Sink | None:
     if mode == "off":
         return None
-    from glmav_observer.publish.rerun_sink import open_rerun_sink
+    from glmav_observer.publish.rerun import open_rerun_sink
 
     return open_rerun_sink(
         mode,

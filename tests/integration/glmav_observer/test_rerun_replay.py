@@ -18,13 +18,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from glmav_observer.publish.rerun_sink import (
-    ACTIVE_CONFIG_INDEX,
+from glmav_observer.publish.rerun import (
     ISOLATED_AXIS_INDEX,
     TIMELINE,
     read_recording,
 )
-from glmav_observer.records import CONFIGS
+from glmav_observer.records import CONFIGS, LOST_AXIS_OF_CONFIG
 
 BIN = Path(sys.executable).parent
 # Times pass through int64 nanoseconds; JSON keeps floats exactly (shortest repr).
@@ -53,8 +52,8 @@ def test_replay_rrd_holds_the_records(tmp_path: Path) -> None:
         chunk.timeline_names[0] for chunk in RrdReader(rrd).stream() if chunk.timeline_names
     } == {TIMELINE}
 
-    # the bank: per axis one entity, instance i = CONFIGS[i], exactly the records' values
-    bank_u = rec["/vehicle/1/bank/v_body/u"]
+    # the estimates: per axis one entity, instance i = CONFIGS[i], exactly the records' values
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]
     full = by_schema["velocity/full"]
     assert len(bank_u[TIMELINE]) == len(full)
     np.testing.assert_allclose(bank_u[TIMELINE], _col(full, "t_boot_s"), rtol=0, atol=T_TOL_S)
@@ -62,7 +61,8 @@ def test_replay_rrd_holds_the_records(tmp_path: Path) -> None:
         expected = _col(by_schema[f"velocity/{config}"], "v_body_mps_u")
         assert [v[i] for v in bank_u["Scalars:scalars"]] == expected
     active = by_schema["velocity/active"]
-    got_n = [v[0] for v in rec["/vehicle/1/active/v_ned/n"]["Scalars:scalars"]]
+    # the active estimate: the last instance, after the configurations
+    got_n = [v[-1] for v in rec["/vehicle/1/estimate/v_ned/n"]["Scalars:scalars"]]
     assert got_n == _col(active, "v_ned_mps_n")
 
     truth = by_schema["glmav.truth/1"]
@@ -93,16 +93,27 @@ def test_replay_rrd_holds_the_records(tmp_path: Path) -> None:
     # the isolation as the service reported it: active configuration, isolated axis, events
     health = by_schema["glmav.health/1"]
     state = rec["/vehicle/1/health/state"]["Scalars:scalars"]
-    assert [s[0] for s in state] == [ACTIVE_CONFIG_INDEX[str(h["active_config"])] for h in health]
+    assert [s[0] for s in state] == [CONFIGS.index(str(h["active_config"])) for h in health]
     isolated = [
         ISOLATED_AXIS_INDEX[h["isolated_faults"][-1]["axis"] if h["isolated_faults"] else None]  # type: ignore[index]
         for h in health
     ]
     assert [s[1] for s in state] == isolated
     assert max(isolated) == ISOLATED_AXIS_INDEX["e"]  # the injected fault is isolated (east)
-    texts = [t[0] for t in rec["/vehicle/1/health/events"]["TextLog:text"]]
+    events = rec["/vehicle/1/health/events"]
+    texts = [t[0] for t in events["TextLog:text"]]
+    # fault detection arms when no axis is in warm-up any more: the first such health record
+    armed = next(h for h in health if "warmup" not in [h[f"axis_state.{a}"] for a in "ned"])
+    assert texts[0] == "fault detection armed on axis n, e, d"
+    assert events[TIMELINE][0] == pytest.approx(float(armed["t_boot_s"]), abs=T_TOL_S)  # type: ignore[arg-type]
+    assert not any("not armed" in t for t in texts)  # armed within 5 s (arming_timeout_s)
     first = next(h for h in health if h["isolated_faults"])
     fault = first["isolated_faults"][0]  # type: ignore[index]
-    assert texts[0] == f"fault isolated on axis e ({fault['kind']}) at {fault['t_detect_s']:.3f} s"
-    assert texts[1] == f"active configuration full -> {first['active_config']}"
+    assert texts[1] == f"fault isolated on axis e ({fault['kind']}) at {fault['t_detect_s']:.3f} s"
+    lost = LOST_AXIS_OF_CONFIG[str(first["active_config"])]
+    assert texts[2] == f"active configuration full -> {first['active_config']} ({lost} lost)"
+    assert lost == "e"  # the configuration without the faulty axis
+    # the status document at the end: the fault's configuration named with its lost axis
+    docs = rec["/vehicle/1/health/status"]["TextDocument:text"]
+    assert any(d[0].startswith(f"**active: {first['active_config']} (e lost)**") for d in docs)
     assert len(RrdReader(rrd).blueprints()) == 1

@@ -14,7 +14,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from glmav_observer.estimation.observer import e_exact
-from glmav_observer.publish.rerun_sink import (
+from glmav_observer.publish.rerun import (
     TIMELINE,
     RerunMode,
     RerunModeError,
@@ -180,17 +180,23 @@ def test_save_roundtrip(tmp_path: Path) -> None:
 
     rec = read_recording(path)
     # the bank: one entity per axis, one instance per configuration (full, c1, c2, c3)
-    bank_u = rec["/vehicle/1/bank/v_body/u"]
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]
     np.testing.assert_allclose(bank_u[TIMELINE], [0.005, 0.01, 0.015], rtol=0, atol=T_TOL_S)
-    expected_u = [[1.0 + k + 0.1 * i for i in range(4)] for k in range(3)]
+    expected_u = [[1.0 + k + 0.1 * i for i in range(5)] for k in range(3)]
     assert bank_u["Scalars:scalars"] == expected_u  # float64 stored as is
-    assert bank_u["static:SeriesLines:names"] == [["full", "c1", "c2", "c3"]]
-    assert rec["/vehicle/1/bank/v_body/w"]["Scalars:scalars"] == [[3.0] * 4] * 3
-    assert rec["/vehicle/1/active/v_ned/d"]["Scalars:scalars"] == [[33.0]] * 3
-    assert rec["/vehicle/1/active/v_body/u"]["Scalars:scalars"] == [[1.4], [2.4], [3.4]]
+    # each c-configuration is named with the axis it has lost (records.LOST_AXIS_OF_CONFIG)
+    assert bank_u["static:SeriesLines:names"] == [
+        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "active"]
+    ]
+    assert rec["/vehicle/1/estimate/v_body/w"]["Scalars:scalars"] == [[3.0] * 5] * 3
+    # the active estimate is the last instance
+    assert [v[-1] for v in rec["/vehicle/1/estimate/v_ned/d"]["Scalars:scalars"]] == [33.0] * 3
+    assert [v[-1] for v in bank_u["Scalars:scalars"]] == [1.4, 2.4, 3.4]
     # est - truth with truth linearly interpolated: at t the truth u is 10 t, n is 100 t
     err_u = rec["/vehicle/1/error/v_body/u"]
-    assert err_u["static:SeriesLines:names"] == [list(ESTIMATES)]
+    assert err_u["static:SeriesLines:names"] == [
+        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "active"]
+    ]
     for k, (t, row) in enumerate(zip(err_u[TIMELINE], err_u["Scalars:scalars"], strict=True)):
         expected = [1.0 + k + 0.1 * i - 10 * t for i in range(5)]
         np.testing.assert_allclose(row, expected, rtol=0, atol=1e-12)
@@ -214,8 +220,21 @@ def test_save_roundtrip(tmp_path: Path) -> None:
     assert rec[f"{h}/state"]["Scalars:scalars"] == [[0.0, 0.0], [2.0, 1.0]]
     assert rec[f"{h}/events"]["TextLog:text"] == [
         ["fault isolated on axis n (bias) at 0.025 s"],
-        ["active configuration full -> c2"],
+        ["active configuration full -> c2 (n lost)"],
     ]
+    # the status document, logged when it changes: what the active configuration lost,
+    # fault detection armed, each axis's state and the configuration without it
+    status = rec[f"{h}/status"]
+    np.testing.assert_allclose(status[TIMELINE], [0.01, 0.03], atol=T_TOL_S)
+    first, second = (doc[0] for doc in status["TextDocument:text"])
+    assert first.splitlines()[0] == "**active: full**"
+    assert "fault detection: armed on n, e, d" in first
+    assert second.splitlines()[0] == (
+        "**active: c2 (n lost)**, axis n dead-reckoned; isolated: n (bias at 0.025 s)"
+    )
+    assert "| n | **faulty** | c2 |" in second.splitlines()
+    assert "| e | ok | c3 |" in second.splitlines()
+    assert "| d | **suspect** | c1 |" in second.splitlines()
     np.testing.assert_allclose(rec[f"{h}/events"][TIMELINE], [0.03, 0.03], atol=T_TOL_S)
     pose = rec["/world/vehicle/1"]
     np.testing.assert_allclose(pose["Transform3D:translation"][0][0], [5.0, 6.0, -7.0])
@@ -244,9 +263,9 @@ def test_save_mode_batches_all_rows_and_drops_unbracketed_errors(tmp_path: Path)
     sink.close()
     rec = read_recording(path)
     # decimation applies to live modes only: a saved log has every record
-    bank_u = rec["/vehicle/1/bank/v_body/u"]["Scalars:scalars"]
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]["Scalars:scalars"]
     assert [v[0] for v in bank_u] == list(map(float, range(n)))  # the full configuration
-    assert all(math.isnan(x) for v in bank_u for x in v[1:])  # c1, c2, c3 never sent
+    assert all(math.isnan(x) for v in bank_u for x in v[1:])  # c1, c2, c3, active never sent
     assert sink.stats.batches_sent >= 20  # flushed as it went, not all at close
     err_t = rec["/vehicle/1/error/v_body/u"][TIMELINE]
     k_last_truth = 495  # the last k with k % 5 == 0 and k / 250 < 2
@@ -277,7 +296,102 @@ def test_spawn_without_display_falls_back_to_save(
     assert f"Open it with: rerun {path}" in caplog.text
     sink.write(_vel("c1", 1.5, (4.0, 5.0, 6.0)))
     sink.close()
-    w = read_recording(path)["/vehicle/1/bank/v_body/w"]["Scalars:scalars"]
+    w = read_recording(path)["/vehicle/1/estimate/v_body/w"]["Scalars:scalars"]
     assert w[0][1] == 6.0  # c1 is the second instance
     with pytest.raises(RerunModeError, match="no DISPLAY or WAYLAND_DISPLAY"):
         open_rerun_sink("spawn", fallback_save_path=None, environ={})
+
+
+def _warming(t: float, unarmed: tuple[str, ...]) -> HealthRecord:
+    states = {a: ("warmup" if a in unarmed else "ok") for a in "ned"}
+    return HealthRecord(1, t, 0, "full", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), states, (), {}, {})
+
+
+def test_fault_detection_arming_is_shown(tmp_path: Path) -> None:
+    """Axes in ``warmup`` (fault detection not armed): a warning once they have stayed
+    there ``arming_timeout_s``, an event when they arm, and the status document says which."""
+    path = tmp_path / "arming.rrd"
+    sink = open_rerun_sink(f"save:{path}", arming_timeout_s=2.0)
+    for k in range(31):  # health at 10 Hz for 3 s: n, e, d warm up until 2.5 s, then d until 3 s
+        t = k / 10
+        unarmed = ("n", "e", "d") if t < 2.5 else ("d",) if t < 3.0 else ()
+        sink.write(_warming(t, unarmed))
+    sink.close()
+    events = read_recording(path)["/vehicle/1/health/events"]
+    texts = [e[0] for e in events["TextLog:text"]]
+    assert texts == [
+        "fault detection not armed after 2.0 s on axis n, e, d: no vetted reference "
+        "(too slow an IMU or missing measurements?)",
+        "fault detection armed on axis n, e",
+        "fault detection armed on axis d",
+    ]
+    assert [lvl[0] for lvl in events["TextLog:level"]] == ["WARN", "INFO", "INFO"]
+    # 2.0 s after the first record (t = 0); the health rows are 0.1 s apart (float sums)
+    np.testing.assert_allclose(events[TIMELINE], [2.0, 2.5, 3.0], atol=1e-9)
+    docs = read_recording(path)["/vehicle/1/health/status"]
+    lines = [d[0].splitlines()[1] for d in docs["TextDocument:text"]]
+    assert lines == [
+        "**fault detection NOT ARMED** on n, e, d (warm-up, no vetted reference yet)",
+        "**fault detection NOT ARMED** on n, e, d (not armed after 2.0 s: warm-up, no vetted "
+        "reference yet (IMU rate? measurements?))",
+        "**fault detection NOT ARMED** on d (not armed after 2.0 s: warm-up, no vetted "
+        "reference yet (IMU rate? measurements?))",
+        "fault detection: armed on n, e, d",
+    ]
+    # warm-up is -1 in the axis-state series
+    states = read_recording(path)["/vehicle/1/health/axis_state"]["Scalars:scalars"]
+    assert states[0] == [-1.0, -1.0, -1.0]
+    assert states[25] == [0.0, 0.0, -1.0]
+    assert states[30] == [0.0, 0.0, 0.0]
+
+
+def test_arming_in_time_gives_no_warning(tmp_path: Path) -> None:
+    path = tmp_path / "armed.rrd"
+    sink = open_rerun_sink(f"save:{path}", arming_timeout_s=2.0)
+    for k in range(30):  # armed at 1.5 s, within the 2 s allowed
+        sink.write(_warming(k / 10, ("n", "e", "d") if k < 15 else ()))
+    sink.close()
+    texts = read_recording(path)["/vehicle/1/health/events"]["TextLog:text"]
+    assert texts == [["fault detection armed on axis n, e, d"]]
+
+
+def test_configurations_are_the_ones_given(tmp_path: Path) -> None:
+    """The bank's instances follow the configuration names the sink is given (a fifth one
+    here); records of a configuration it was not given are ignored."""
+    path = tmp_path / "five.rrd"
+    configs = ("full", "c1", "c2", "c3", "aided")
+    sink = open_rerun_sink(f"save:{path}", configs=configs)
+    assert sink.configs == configs
+    for k, t in enumerate((0.0, 0.004)):
+        for i, c in enumerate((*configs, "active", "unknown")):
+            v = (float(i), float(k), 0.0)
+            sink.write(VelocityRecord(1, c, t, v, v, None, "ok", k))
+    sink.close()
+    rec = read_recording(path)
+    bank_u = rec["/vehicle/1/estimate/v_body/u"]
+    assert bank_u["static:SeriesLines:names"] == [
+        ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "aided", "active"]
+    ]
+    assert len(bank_u["static:SeriesLines:colors"][0]) == 6  # one colour each, all distinct
+    assert len(set(bank_u["static:SeriesLines:colors"][0])) == 6
+    assert bank_u["Scalars:scalars"] == [[0.0, 1.0, 2.0, 3.0, 4.0, 5.0]] * 2  # active last
+    assert rec["/vehicle/1/estimate/v_body/v"]["Scalars:scalars"] == [[0.0] * 6, [1.0] * 6]
+    for bad in ((), ("full", "full"), ("full", "active")):
+        with pytest.raises(ValueError, match="distinct configuration names"):
+            open_rerun_sink("off", configs=bad)
+
+
+def test_active_line_is_the_widest_of_its_plots(tmp_path: Path) -> None:
+    """The active estimate coincides with a configuration and with the truth: it is drawn
+    wider than both, so a band of it shows whatever the viewer draws on top."""
+    path = tmp_path / "widths.rrd"
+    sink = open_rerun_sink(f"save:{path}")
+    sink.write(_vel("full", 0.0, (1.0, 2.0, 3.0)))
+    sink.close()
+    rec = read_recording(path)
+    for axis in ("v_body/u", "v_ned/d"):
+        *configs, active = rec[f"/vehicle/1/estimate/{axis}"]["static:SeriesLines:widths"][0]
+        names = rec[f"/vehicle/1/estimate/{axis}"]["static:SeriesLines:names"][0]
+        assert names[-1] == "active"  # the last instance: drawn after the configurations
+        others = [*configs, *rec[f"/vehicle/1/truth/{axis}"]["static:SeriesLines:widths"][0]]
+        assert active >= 2 * max(others), (active, others)  # >= 1 px band each side
