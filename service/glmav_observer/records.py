@@ -111,8 +111,9 @@ class HealthRecord:
     ``residual_ned_mps`` are the per-axis residuals of the velocity measurement
     against the prediction; ``test_ratio`` the residual statistics over their
     thresholds (> 1 means the axis fails its test); ``axis_state`` maps each NED axis
-    to ``"ok"``, ``"suspect"``, ``"faulty"`` or ``"recovering"``; ``input_rates_hz``
-    the measured stream rates by message name.
+    to ``"ok"``, ``"suspect"``, ``"faulty"`` or ``"recovering"``; ``isolated_faults``
+    the axes isolated now, plus any ``accel_bias`` event of the last 5 s (axis ``"body"``:
+    it isolates nothing); ``input_rates_hz`` the measured stream rates by message name.
     """
 
     sysid: int

@@ -77,6 +77,9 @@ from glmav_observer.records import (
     VelocityRecord,
 )
 
+#: An ``accel_bias`` event stays in the health record's faults this long (vehicle s):
+#: it isolates nothing, but subscribers and the Rerun view must see it.
+ACCEL_EVENT_HOLD_S = 5.0
 #: Measurements between two updates of the gain of ``full`` (~5 s at 25 Hz).
 GAMMA_UPDATE_SAMPLES = 125
 #: The configuration that does not use each NED axis (index 0 n, 1 e, 2 d).
@@ -612,7 +615,14 @@ class VehicleEstimator:
                 (res[0], res[1], res[2]),
                 (rat[0], rat[1], rat[2]),
                 self.fdi.states(),
-                tuple(a.fault for a in self.fdi.axes if a.fault is not None),
+                (
+                    *(a.fault for a in self.fdi.axes if a.fault is not None),
+                    *(
+                        f
+                        for f in self.faults
+                        if f.kind == "accel_bias" and t - f.t_detect_s <= ACCEL_EVENT_HOLD_S
+                    ),
+                ),
                 self.rates_fn(t) if self.rates_fn is not None else {},
                 dict(sorted(self.counters.items())),
             )

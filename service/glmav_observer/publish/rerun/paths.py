@@ -48,7 +48,7 @@ WIDTH_TRUTH = 1.5
 WIDTH_ACTIVE = 4.0
 
 #: Encodings of the state series (a scalar per state so that the viewer plots steps).
-ISOLATED_AXIS_INDEX: dict[str | None, int] = {None: 0, "n": 1, "e": 2, "d": 3}
+ISOLATED_AXIS_INDEX: dict[str | None, int] = {None: 0, "n": 1, "e": 2, "d": 3, "body": 4}
 AXIS_STATE_INDEX: dict[str, int] = {
     "warmup": -1,
     "ok": 0,
