@@ -34,10 +34,11 @@ multiple of s_j = √(σ_r,j² + σ²_pred,j), never a number tuned on one simul
 Tests (thresholds in :class:`FdiConfig`):
 
 - dropout: ``dropout_samples`` consecutive NaN samples;
-- freeze: ``freeze_repeats`` exact repeats of the previous value, if the measurement is
-  noisy (white noise above ``freeze_noise_mps``: a noisy value never repeats) or the IMU
-  says the axis's velocity changed by more than ``freeze_motion_mps`` since that value was
-  first seen (a noise-free or coarse GPS repeats its value in a hover);
+- freeze: ``freeze_repeats`` exact repeats of the previous value, if the stream seldom
+  repeats (fewer than ``freeze_repeat_rate`` of its healthy samples: an EKF's output, a
+  noisy sensor) or the IMU says the axis's velocity changed by more than
+  ``freeze_motion_mps`` since that value was first seen (a noise-free or coarse GPS
+  repeats its value in a hover);
 - bias: |median of the last ``bias_samples`` residuals| > max(``bias_threshold_mps``,
   ``bias_sigma`` · s_j) (the median: one outlier cannot move it);
 - noise: median of the last ``noise_samples`` squared successive differences over its
@@ -125,9 +126,9 @@ class FdiConfig:
     #: the IMU-predicted change of an axis since its value was first seen beyond which a
     #: repeat of that value counts towards a freeze
     freeze_motion_mps: float = 0.1
-    #: white noise (σ of the measurement, from successive differences) above which exact
-    #: repeats alone are a freeze
-    freeze_noise_mps: float = 0.02
+    #: a stream that repeats its value less often than this (fraction of samples) seldom
+    #: repeats: exact repeats alone are a freeze
+    freeze_repeat_rate: float = 0.02
     bias_samples: int = 6
     bias_threshold_mps: float = 0.15
     bias_sigma: float = 5.0
@@ -406,6 +407,11 @@ class AxisMonitor:
     var_diff_mps2: float = 0.0
     _r_prev: float = math.nan
     _v_imu_at_value: float = 0.0  # the IMU's velocity when the current value was first seen
+    #: running fraction of samples that repeat the previous value exactly (healthy axis);
+    #: starts at 0.5 (a prior worth 2 samples: "unknown", repeats need the IMU's word)
+    _repeat_rate: float = 0.5
+    _repeat_n: float = 2.0
+    _rate_before_run: float = 0.5
 
     def __post_init__(self) -> None:
         self._var_r = self.cfg.sigma_meas_mps**2
@@ -533,19 +539,23 @@ class AxisMonitor:
                 self.state = AxisState.FAULTY
             return AxisVerdict(False, math.nan, math.inf, self.state)
         self._nan_run = 0
-        # freeze: exact repeats of a noisy measurement, or of a quiet one (a noise-free SITL
-        # GPS, a coarse step) while the IMU says the velocity changed: a quiet GPS repeats
-        # its value in a hover, which is a measurement, not a fault. Without a usable
-        # IMU, repeats alone count.
+        # freeze: exact repeats of a measurement that seldom repeats (an EKF's float output,
+        # a noisy sensor), or of one that often does (a noise-free SITL GPS, a coarse step:
+        # it repeats in a hover, which is a measurement, not a fault) while the IMU says
+        # the velocity changed. Without a usable IMU, repeats alone count.
         pred, sigma_pred = self.predict(a_int_mps, ints)
         # the IMU's velocity (bias-corrected by the reference when there is one)
         v_imu = pred if math.isfinite(pred) else a_int_mps
         same = y_mps == self._last_y
         if not same:
             self._v_imu_at_value = v_imu
-        noisy = self.var_diff_mps2 > 2.0 * cfg.freeze_noise_mps**2
+            self._rate_before_run = self._repeat_rate  # the run being judged does not count
+        if self.fault is None:  # a running mean, exact over the first scale_samples
+            self._repeat_n = min(self._repeat_n + 1.0, float(cfg.scale_samples))
+            self._repeat_rate += (float(same) - self._repeat_rate) / self._repeat_n
+        seldom = self._rate_before_run < cfg.freeze_repeat_rate
         moved = abs(v_imu - self._v_imu_at_value) > cfg.freeze_motion_mps
-        repeated = same and (noisy or moved or not self.fit.imu_ok)
+        repeated = same and (seldom or moved or not self.fit.imu_ok)
         self._repeats = self._repeats + 1 if repeated else 0
         self._last_y = y_mps
         r = y_mps - pred

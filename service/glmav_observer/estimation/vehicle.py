@@ -80,6 +80,9 @@ from glmav_observer.records import (
 #: An ``accel_bias`` event stays in the health record's faults this long (vehicle s):
 #: it isolates nothing, but subscribers and the Rerun view must see it.
 ACCEL_EVENT_HOLD_S = 5.0
+#: After a switch back to ``full``, its gain stays at ``gamma_full_min`` this long (s):
+#: the dead reckoning's drift is corrected in ~1/γ_min = 0.25 s, not in one step.
+RECOVERY_BLEND_S = 1.0
 #: Measurements between two updates of the gain of ``full`` (~5 s at 25 Hz).
 GAMMA_UPDATE_SAMPLES = 125
 #: The configuration that does not use each NED axis (index 0 n, 1 e, 2 d).
@@ -104,7 +107,7 @@ class EstimatorConfig:
     metrics_skip_s: float = 3.0
     adapt_gamma_full: bool = True
     gamma_full_min: float = 4.0
-    gamma_full_max: float = 40.0
+    gamma_full_max: float = 20.0
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
@@ -203,6 +206,8 @@ class VehicleEstimator:
         self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
         self._n_accel_changes = 0
         self._n_meas = 0
+        self._gamma_saved: float | None = None
+        self._t_gamma_restore_s = math.inf
         self.t_bank_s: float | None = None
         self.t_first_s: float | None = None
         self._euler: Vec3 | None = None
@@ -261,6 +266,10 @@ class VehicleEstimator:
                 self.restart("gap")
             else:
                 self._step_to(t)
+        if t >= self._t_gamma_restore_s and self._gamma_saved is not None:
+            self.bank.set_gamma("full", self._gamma_saved)
+            self._gamma_saved = None
+            self._t_gamma_restore_s = math.inf
         if isinstance(s, AttitudeSample):
             self._euler = s.euler_rad
             self._omega_att = s.omega_body_radps
@@ -391,7 +400,12 @@ class VehicleEstimator:
         from the despiker, the bias from the fit (at least 0.05 m/s²). Only while every
         axis is healthy and armed; a change is limited to ×/÷ 1.5 per update."""
         axes = self.fdi.axes
-        if self.fdi.faulty_axes() or not self.fdi.armed() or self._y_interval_s <= 0.0:
+        if (
+            self.fdi.faulty_axes()
+            or not self.fdi.armed()
+            or self._y_interval_s <= 0.0
+            or self._gamma_saved is not None
+        ):
             return
         if imu_hz <= 0.0 or any(a.var_diff_mps2 <= 0.0 for a in axes):
             return
@@ -486,6 +500,14 @@ class VehicleEstimator:
             self._ref_handover = ax.reference()
         assert self._euler is not None
         self.bank.set_state_ned(to, v0, self._euler)
+        if to == "full" and lost_idx is None:
+            # back from a hand-over: `full` starts from the dead-reckoned estimate and
+            # converges to the re-admitted measurement at the low gain for a while, so that
+            # the dead reckoning's drift is corrected smoothly, not in one step
+            if self._gamma_saved is None:
+                self._gamma_saved = self.bank.gamma_gain[0]
+            self.bank.set_gamma("full", min(self._gamma_saved, self.cfg.gamma_full_min))
+            self._t_gamma_restore_s = t + RECOVERY_BLEND_S
         self._t_seed_s[_CONFIG_INDEX[to]] = t
         self._latest_ned = None
         self.switches.append(
