@@ -132,7 +132,11 @@ def test_service_with_a_key_ignores_injected_frames(
 
 def _key_config(tmp: Path, line: str) -> Path:
     p = tmp / "service.toml"
-    p.write_text(f"[rates]\nrequest = false\n\n[security]\n{line}\n", encoding="utf-8")
+    p.write_text(
+        f'[rates]\nmode = "observe"\n\n[security]\n{line}\n'
+        'signing_state_file = "signing-state.json"\n',  # not the user's state directory
+        encoding="utf-8",
+    )
     return p
 
 
