@@ -48,6 +48,17 @@ def main(args: argparse.Namespace) -> int:
         config = load_config(args.config)
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
+        sinks = open_sinks(
+            config,
+            out=args.out,
+            zenoh_config=args.zenoh,
+            zenoh_enabled=True if args.zenoh is not None else None,
+            rerun_mode=args.rerun,
+        )
+    except (ConfigError, FileSinkError, OSError, ValueError) as err:
+        print(f"glmav-observer serve: {err}", file=sys.stderr)
+        return 2
+    try:  # links are checked once the outputs' own errors have been reported
         links = args.link or list(config.links)
         if not links:
             raise ConfigError(
@@ -58,14 +69,9 @@ def main(args: argparse.Namespace) -> int:
             )
         for conn in links:
             check_connection_string(conn)
-        sinks = open_sinks(
-            config,
-            out=args.out,
-            zenoh_config=args.zenoh,
-            zenoh_enabled=True if args.zenoh is not None else None,
-            rerun_mode=args.rerun,
-        )
-    except (ConfigError, FileSinkError, LinkError, OSError, ValueError) as err:
+    except (ConfigError, LinkError) as err:
+        for sink in sinks:
+            sink.close()
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     try:
