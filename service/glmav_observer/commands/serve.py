@@ -61,11 +61,9 @@ def main(args: argparse.Namespace) -> int:
     try:  # links are checked once the outputs' own errors have been reported
         links = args.link or list(config.links)
         if not links:
-            raise ConfigError(
-                "--link",
-                "link",
+            raise LinkError(
                 f"no link given: pass --link (e.g. --link {EXAMPLE_LINK} behind MAVProxy or "
-                "mavlink-router; docs/deployment.md) or set [service].links",
+                "mavlink-router; docs/deployment.md) or set [service].links"
             )
         for conn in links:
             check_connection_string(conn)
