@@ -91,7 +91,9 @@ HEALTHCHECK --interval=30s --timeout=15s --start-period=30s --retries=3 \
     CMD ["python", "/opt/glmav/healthcheck.py"]
 
 ENTRYPOINT ["glmav-observer"]
-# The default command matches compose and the health check: publish through the router
-# of configs/zenoh/client-router.json5 (it exits with a clear error when none answers).
+# The default command matches compose and the health check: MAVLink on loopback port 14551
+# (not the ground station's 14550; serve has no built-in link), published through the
+# router of configs/zenoh/client-router.json5 (it exits with a clear error when none answers).
 CMD ["serve", "--config", "/etc/glmav-observer/service.toml", \
+     "--link", "udpin:127.0.0.1:14551", \
      "--zenoh", "/etc/glmav-observer/zenoh/client-router.json5"]

@@ -15,7 +15,7 @@
 # Usage: sudo scripts/container-check.sh [--build-only] [--keep]
 #   --build-only   stop after step 3
 #   --keep         leave the stack running at the end (podman-compose -p glmav-check down)
-# Environment: GLMAV_IMAGE (default localhost/glmav-observer:check), GLMAV_CHECK_DIR (logs;
+# Environment: GLMAV_IMAGE (default localhost/glmav-observer:latest, as compose.yaml), GLMAV_CHECK_DIR (logs;
 #   default a new /tmp dir), GLMAV_CHECK_SECONDS (simulated seconds, default 40),
 #   GLMAV_TOOLS_DIR (podman-compose venv, default /var/tmp/glmav-tools)
 #
@@ -25,7 +25,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-IMAGE="${GLMAV_IMAGE:-localhost/glmav-observer:check}"
+IMAGE="${GLMAV_IMAGE:-localhost/glmav-observer:latest}"  # the tag compose and the docs run
 BASE_TAG=docker.io/library/python:3.11-slim-bookworm
 PROJECT=glmav-check
 SIM_SECONDS="${GLMAV_CHECK_SECONDS:-40}"
@@ -63,16 +63,9 @@ mkdir -p "$WORK"
 
 # podman settings for a nested, systemd-less host (every podman call of this script and of
 # podman-compose reads them): runc, cgroupfs, file events, and rlimits that runc may set
-# (it cannot raise a container's rlimits above what this host allows).
-cat >"$WORK/containers.conf" <<'EOF'
-[containers]
-default_ulimits = ["nofile=1024:1024", "nproc=4096:4096"]
-
-[engine]
-runtime = "runc"
-cgroup_manager = "cgroupfs"
-events_logger = "file"
-EOF
+# (it cannot raise a container's rlimits above what this host allows). Shipped in the
+# repository so that users' own podman commands can use the same file (docs/container.md).
+cp deploy/container/containers.conf "$WORK/containers.conf"
 export CONTAINERS_CONF="$WORK/containers.conf"
 
 STACK_UP=0

@@ -26,19 +26,26 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.vehicle import VehicleEstimator
-from glmav_observer.ingest.framing import FrameCounters, FrameDecoder, iter_tlog, new_dialect
+from glmav_observer.ingest.framing import (
+    FrameCounters,
+    FrameDecoder,
+    SigningState,
+    iter_tlog,
+    new_dialect,
+)
 from glmav_observer.ingest.links import Link
 from glmav_observer.ingest.pipeline import (
     Ingest,
     IngestEvent,
     NewVehicle,
+    VehicleConflict,
     VehicleEvicted,
     VehicleReset,
 )
@@ -46,7 +53,7 @@ from glmav_observer.ingest.rates import encode_rate_request
 from glmav_observer.ingest.samples import Sample
 from glmav_observer.publish.file_sink import FileSink
 from glmav_observer.publish.sink import Sink
-from glmav_observer.records import CONFIGS, Record
+from glmav_observer.records import CONFIGS, HealthRecord, Record
 
 logger = logging.getLogger(__name__)
 
@@ -55,6 +62,11 @@ VELOCITY_MESSAGES = ("LOCAL_POSITION_NED",)
 
 #: How often (host seconds) the live loop checks received rates against requested ones.
 RATE_CHECK_PERIOD_S = 1.0
+#: Reads from one ready link per loop turn before the loop checks stop, rates and outbox.
+DRAIN_MAX_READS = 256
+#: At stop, datagrams already queued are read for at most this long (host seconds): the
+#: stop bound of issue 18 (SIGTERM ≤ 0.5 s under any load).
+STOP_DRAIN_S = 0.5
 
 
 @dataclass
@@ -80,6 +92,10 @@ class ServiceSummary:
     service_counters: dict[str, int]
     records: int
     messages: int
+    #: sinks that failed and were isolated: (sink class name, error)
+    failed_sinks: list[tuple[str, str]] = field(default_factory=list)
+    #: a replay stopped before the end of its log: where ("" = it ran to the end)
+    cut: str = ""
 
     @property
     def rejected_frames(self) -> int:
@@ -94,6 +110,10 @@ class ServiceSummary:
             f"messages {self.messages}, records {self.records}, "
             f"rejected frames {self.rejected_frames}"
         ]
+        if self.cut:
+            lines.append(f"CUT SHORT: {self.cut}: the output covers only the log up to there")
+        for sink, err in self.failed_sinks:
+            lines.append(f"SINK FAILED: {sink}: {err}")
         for name, c in self.link_counters.items():
             lines.append(f"link {name}: " + ", ".join(f"{k}={v}" for k, v in c.items()))
         if self.service_counters:
@@ -152,6 +172,8 @@ class Service:
     def __init__(self, config: ServiceConfig, sinks: Sequence[Sink] = ()) -> None:
         self.config = config
         self.sinks: list[Sink] = list(sinks)
+        #: sinks isolated after a write failed: (sink class name, error)
+        self.failed_sinks: list[tuple[str, str]] = []
         self.ingest = Ingest(config.ingest)
         self.estimators: dict[int, VehicleEstimator] = {}
         self._retired: dict[int, VehicleEstimator] = {}
@@ -163,12 +185,18 @@ class Service:
         self.outbox: list[tuple[str, bytes, Any]] = []
         self._vehicle_link: dict[int, str] = {}
         self._vehicle_peer: dict[int, Any] = {}
+        #: sequence numbers of the service's own conflict health records, per vehicle
+        self._conflict_seq: dict[int, int] = {}
         #: the sender address of the datagram being processed (set by the live loop)
         self.current_peer: Any = None
-        self._mav = new_dialect()
+        #: MAVLink 2 signing freshness, shared by every link, persisted if configured
+        self.signing: SigningState | None = None
+        if config.signing_key is not None:
+            self.signing = SigningState(config.signing_key, config.signing_state_file)
+        # what we send is signed with the same key (a signed vehicle ignores the rest)
+        self._mav = new_dialect(self.signing, config.signing_key)
         self._closed = False
         self.on_records: Callable[[list[Record]], None] | None = None
-        self._first_requests: list[int] = []
         self._links: dict[str, Link] = {}
 
     # ------------------------------------------------------------------ input
@@ -176,7 +204,9 @@ class Service:
         dec = self.decoders.get(link_id)
         if dec is None:
             dec = self.decoders[link_id] = FrameDecoder(
-                datagram=datagram, signing_key=self.config.signing_key
+                datagram=datagram,
+                signing_key=self.config.signing_key,
+                signing_state=self.signing,
             )
         return dec
 
@@ -211,6 +241,12 @@ class Service:
             if isinstance(ev, VehicleReset):
                 self.estimators[ev.sysid].restart("clock_reset")
                 continue
+            if isinstance(ev, VehicleConflict):
+                if ev.active:  # what was estimated may mix two sources: start afresh later
+                    self.estimators[ev.sysid].restart("conflicting_sources")
+                    self.counters["conflicting_sources"] += 1
+                out.append(self._conflict_health(ev.sysid))
+                continue
             self._vehicle_link[ev.sysid] = link_id
             self._vehicle_peer[ev.sysid] = self.current_peer
             out.extend(self._estimate(ev))
@@ -226,36 +262,81 @@ class Service:
             est.faults, est.switches, est.errors = old.faults, old.switches, old.errors
         self.estimators[sysid] = est
         self._vehicle_link[sysid] = link_id
-        self._first_requests.append(sysid)
+        self._vehicle_peer[sysid] = self.current_peer
+
+    def _conflict_health(self, sysid: int) -> HealthRecord:
+        """The health record that flags (or clears) conflicting sources for ``sysid``:
+        ``counters.conflicting_sources_active`` is 1 while estimation is stopped."""
+        v = self.ingest.vehicles[sysid]
+        est = self.estimators[sysid]
+        nan = math.nan
+        self._conflict_seq[sysid] = self._conflict_seq.get(sysid, 0) + 1
+        counters = dict(sorted(v.counters.items()))
+        counters["conflicting_sources_active"] = int(v.conflict)
+        return HealthRecord(
+            sysid,
+            v.clock.t_now_s if v.clock.t_now_s is not None else nan,
+            self._conflict_seq[sysid],
+            est.active_config,
+            (nan, nan, nan),
+            (nan, nan, nan),
+            {"n": "suspect", "e": "suspect", "d": "suspect"}
+            if v.conflict
+            else {"n": "warmup", "e": "warmup", "d": "warmup"},
+            (),
+            v.rates.rates(),
+            counters,
+        )
 
     def _estimate(self, s: Sample) -> list[Record]:
         return self.estimators[s.sysid].on_sample(s)
 
     def _publish(self, records: list[Record]) -> None:
         self.records += len(records)
-        for sink in self.sinks:
-            for r in records:
-                sink.write(r)
+        for sink in list(self.sinks):
+            try:
+                for r in records:
+                    sink.write(r)
+            except Exception as err:  # one failing sink (a full disk) must not stop the rest
+                self._sink_failed(sink, err)
         if self.on_records is not None:
             self.on_records(records)
 
+    def _sink_failed(self, sink: Sink, err: BaseException) -> None:
+        """Isolate a sink whose write raised: log, count, close it, keep the others going.
+
+        Counted service-wide (``sink_failed``, ``sink_failed_<Sink>``) and in every
+        vehicle's counters, which health records publish (``counters.sink_failed``)."""
+        name = type(sink).__name__
+        self.sinks.remove(sink)
+        self.failed_sinks.append((name, str(err)))
+        self.counters["sink_failed"] += 1
+        self.counters[f"sink_failed_{name}"] += 1
+        for v in self.ingest.vehicles.values():
+            v.counters["sink_failed"] += 1
+        logger.error("sink failed: isolated", extra={"sink": name, "error": str(err)})
+        try:
+            sink.close()
+        except Exception as close_err:
+            logger.warning("closing a failed sink", extra={"sink": name, "error": str(close_err)})
+
     # ------------------------------------------------------------------ rates
-    def rate_requests(self) -> None:
-        """Queue SET_MESSAGE_INTERVAL for new vehicles and for streams that fall short."""
+    def rate_requests(self, t_host_s: float) -> None:
+        """Queue the SET_MESSAGE_INTERVAL requests due at host time ``t_host_s``
+        (``[rates] mode = "request"``; ingest/rates.py has the policy)."""
+        conflicted = [s for s, v in self.ingest.vehicles.items() if v.conflict]
+        if conflicted:  # the flag stays visible while the vehicle is not estimated
+            self._publish([self._conflict_health(s) for s in conflicted if s in self.estimators])
         if not self.config.request_rates:
-            self._first_requests.clear()
             return
-        first = set(self._first_requests)
-        self._first_requests.clear()
         for sysid in list(self.ingest.vehicles):
             link = self._vehicle_link.get(sysid)
             if link is None:
                 continue
-            reqs = self.ingest.rate_requests(sysid, first=sysid in first)
-            if reqs and sysid not in first:
-                self.counters["rate_rerequest"] += len(reqs)
+            reqs = self.ingest.rate_requests(sysid, t_host_s)
+            if reqs:
                 logger.info(
-                    "rates short: requested again",
+                    "rates short: requested",
                     extra={"sysid": sysid, "messages": [r.message for r in reqs]},
                 )
             for r in reqs:
@@ -293,7 +374,11 @@ class Service:
                 continue
             for fd in ready:
                 lid, lk = by_fd[fd]
-                while True:  # drain the socket
+                # drain the socket, but at most DRAIN_MAX_READS reads a turn and never past
+                # a stop request: a flood must not delay shutdown or the rate checks
+                for _ in range(DRAIN_MAX_READS):
+                    if stop_event.is_set():
+                        break
                     data = lk.read()
                     if not data:
                         break
@@ -302,13 +387,30 @@ class Service:
                     if not lk.datagram:
                         break
             now = clock()
-            if self._first_requests or now >= next_rate_check:
-                self.rate_requests()
+            if now >= next_rate_check:
+                self.rate_requests(now)
+                if self.signing is not None:
+                    self.signing.save()
                 next_rate_check = now + RATE_CHECK_PERIOD_S
             while self.outbox:
                 lid, frame, peer = self.outbox.pop(0)
                 if lid in links:
                     links[lid].write(frame, peer)
+        self._final_drain(links, clock)
+
+    def _final_drain(self, links: dict[str, Link], clock: Callable[[], float]) -> None:
+        """At stop: what is already queued on the links is still read, for at most
+        ``STOP_DRAIN_S`` (a flood cannot hold the stop back longer)."""
+        deadline = time.monotonic() + STOP_DRAIN_S
+        for lid, lk in links.items():
+            if lk.fileno() is None:
+                continue
+            while time.monotonic() < deadline:
+                data = lk.read()
+                if not data:
+                    break
+                self.current_peer = lk.peer
+                self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
 
     # ------------------------------------------------------------------ results
     def summary(self) -> ServiceSummary:
@@ -340,6 +442,7 @@ class Service:
             ),
             records=self.records,
             messages=self.messages,
+            failed_sinks=list(self.failed_sinks),
         )
 
     def close(self) -> None:
@@ -347,13 +450,19 @@ class Service:
         if self._closed:
             return
         self._closed = True
+        if self.signing is not None:
+            self.signing.save()
         # samples still held by the reorder buffer are estimated, not lost
         self._handle(self.ingest.flush(), "")
         for sink in self.sinks:
             try:
                 sink.close()
-            except Exception:
-                logger.exception("sink close failed", extra={"sink": type(sink).__name__})
+            except Exception as err:  # e.g. the last buffer of a file on a full disk
+                name = type(sink).__name__
+                self.failed_sinks.append((name, str(err)))
+                self.counters["sink_failed"] += 1
+                self.counters[f"sink_failed_{name}"] += 1
+                logger.error("sink close failed", extra={"sink": name, "error": str(err)})
 
 
 # ---------------------------------------------------------------------- replay
@@ -363,8 +472,12 @@ def replay_tlog(
     sinks: Sequence[Sink] = (),
     *,
     progress: Callable[[int, int], None] | None = None,
+    stop_event: threading.Event | None = None,
 ) -> ServiceSummary:
-    """Run the pipeline over a ``.tlog`` (deterministic); sinks are closed at the end."""
+    """Run the pipeline over a ``.tlog`` (deterministic); sinks are closed at the end.
+
+    If ``stop_event`` is set during the replay, it stops there, closes the sinks (their
+    files end on whole records) and the summary's ``cut`` says where it stopped."""
     data = Path(path).read_bytes()
     service = Service(config, sinks)
     counters = FrameCounters()
@@ -372,17 +485,23 @@ def replay_tlog(
     n = len(data)
     step = max(1, n // 200)
     next_report = 0
+    cut = ""
     try:
         for rec in iter_tlog(data, counters):
+            if stop_event is not None and stop_event.is_set():
+                cut = f"stopped at byte {rec.offset} of {n} ({100 * rec.offset // max(n, 1)} %)"
+                break
             service.feed_message(rec.msg, rec.t_host_us * 1e-6, str(path))
             if progress is not None and rec.offset >= next_report:
                 progress(rec.offset, n)
                 next_report = rec.offset + step
-        if progress is not None:
+        if progress is not None and not cut:
             progress(n, n)
     finally:
         service.close()
-    return service.summary()
+    summary = service.summary()
+    summary.cut = cut
+    return summary
 
 
 # ---------------------------------------------------------------------- flight logs
@@ -488,7 +607,7 @@ def replay_flight_log(
         log = read_flight_log(path, velocity_source, gps_delay_s=gps_delay_s)  # type: ignore[arg-type]
         sysid = LOG_SYSID
         counters: collections.Counter[str] = collections.Counter()
-        monitor = RateMonitor({}, config.ingest.rate_window_s)
+        monitor = RateMonitor({}, window_s=config.ingest.rate_window_s)
         est = VehicleEstimator(sysid, config.estimation, counters, monitor.rates)
         service.estimators[sysid] = est
         ref_source = log.streams.sources.get("ekf", "ekf")
@@ -519,7 +638,8 @@ def replay_flight_log(
             references_until(smp.t_boot_s)
             service.messages += 1
             if not isinstance(smp, TruthSample):
-                monitor.note(names[type(smp).__name__], smp.t_boot_s)
+                # offline: the log's time is the only clock (host time = vehicle time)
+                monitor.note(names[type(smp).__name__], smp.t_boot_s, smp.t_boot_s)
             recs = est.on_sample(smp)
             for r in recs:
                 if isinstance(r, VelocityRecord):
@@ -552,6 +672,42 @@ def replay_flight_log(
 
 
 # ---------------------------------------------------------------------- sinks
+class OutputError(ValueError):
+    """An output the user named cannot be written (the message says which and why)."""
+
+
+def check_output_file(path: str | Path) -> None:
+    """Refuse an output file whose directory is missing (it is not created) or that
+    cannot be written (a read-only file system, no permission): :class:`OutputError`."""
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"{p}: directory {parent} does not exist (it is not created)")
+    existed = p.exists()
+    try:
+        with p.open("ab"):
+            pass
+    except OSError as err:
+        raise OutputError(f"{p}: cannot write: {err.strerror}") from None
+    if not existed:
+        p.unlink(missing_ok=True)
+
+
+def check_tcp_port_free(host: str, port: int, what: str) -> None:
+    """:class:`OutputError` if another process listens on ``host:port`` (checked before a
+    server that would otherwise start without it and keep running)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # ignore TIME_WAIT only
+        try:
+            s.bind((host, port))
+        except OSError as err:
+            raise OutputError(
+                f"{what}: {host}:{port} is taken by another process ({err.strerror})"
+            ) from None
+
+
 def open_sinks(
     config: ServiceConfig,
     *,
@@ -588,6 +744,13 @@ def open_sinks(
         mode = rerun_mode if rerun_mode is not None else config.rerun.mode
         if mode != "off":
             from glmav_observer.publish.rerun import open_rerun_sink
+            from glmav_observer.publish.rerun.viewer import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+
+            if mode.startswith("save:"):
+                check_output_file(mode.removeprefix("save:"))
+            elif mode == "serve":
+                for port in (DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT):
+                    check_tcp_port_free(config.rerun.serve_bind, port, "--rerun serve")
 
             sinks.append(
                 open_rerun_sink(

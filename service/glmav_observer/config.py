@@ -24,6 +24,21 @@ from glmav_observer.ingest.convert import RawImuScale
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
 
+#: The rates the estimator needs (``[rates.min_hz]``): a stream below is asked for.
+#: IMU: the FDI's ``min_imu_rate_hz`` (its residual tests need it); ATTITUDE: 10 Hz (the
+#: rate MAVSDK's ``set_rate_attitude_euler`` users pick; the attitude is held between
+#: samples); LOCAL_POSITION_NED: 5 Hz (the FDI's tests count samples within 0.3-0.6 s);
+#: SIM_STATE: truth only, never needed.
+DEFAULT_MIN_RATES_HZ: dict[str, float] = {
+    "ATTITUDE": 10.0,
+    "HIGHRES_IMU": 50.0,
+    "LOCAL_POSITION_NED": 5.0,
+    "SIM_STATE": 0.0,
+}
+
+#: Upper bound of ``[ingest] reorder_window_s`` (s of vehicle time).
+MAX_REORDER_WINDOW_S = 1.0
+
 #: Requested stream rates when ``[rates.hz]`` is absent (design.md's SITL rates).
 DEFAULT_RATES_HZ: dict[str, float] = {
     "ATTITUDE": 100.0,
@@ -99,6 +114,8 @@ class ServiceConfig:
     rerun: RerunSettings = field(default_factory=RerunSettings)
     mavlink_out: MavlinkOutSettings = field(default_factory=MavlinkOutSettings)
     signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing
+    #: where signing timestamps persist across restarts (None: in memory only)
+    signing_state_file: str | None = None
     source: str = "<defaults>"
 
     def effective(self) -> dict[str, Any]:
@@ -122,16 +139,112 @@ class ServiceConfig:
 Check = Callable[[Any], str | None]
 
 
-def _positive(x: Any) -> str | None:
-    return None if x > 0 else "must be > 0"
-
-
-def _non_negative(x: Any) -> str | None:
-    return None if x >= 0 else "must be >= 0"
-
-
 def _ratio(x: Any) -> str | None:
     return None if 0 < x <= 1 else "must be in (0, 1]"
+
+
+def _num(x: float) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+def _within(lo: float, hi: float, *, lo_open: bool = False) -> Check:
+    """A closed range [lo, hi] (or (lo, hi] with ``lo_open``): every value has one."""
+
+    def check(x: Any) -> str | None:
+        ok = (lo < x if lo_open else lo <= x) and x <= hi
+        return None if ok else f"must be in {'(' if lo_open else '['}{_num(lo)}, {_num(hi)}]"
+
+    return check
+
+
+def _ip_address(x: Any) -> str | None:
+    import ipaddress
+
+    try:
+        ipaddress.ip_address(x)
+    except ValueError:
+        return "must be an IP address (e.g. 127.0.0.1; 0.0.0.0 listens on every interface)"
+    return None
+
+
+_ID_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_.")
+
+
+def _name(x: Any) -> str | None:
+    """A service id or key segment: 1..64 of [A-Za-z0-9._-] (a Zenoh key chunk)."""
+    if not 1 <= len(x) <= 64 or not set(x) <= _ID_CHARS:
+        return "must be 1 to 64 characters from A-Z a-z 0-9 . _ -"
+    return None
+
+
+def _key_prefix(x: Any) -> str | None:
+    """A Zenoh key prefix: chunks of :func:`_name` separated by '/'."""
+    if not x or len(x) > 200 or any(_name(c) for c in x.split("/")):
+        return "must be '/'-separated chunks of A-Z a-z 0-9 . _ - (no wildcards, no empty chunk)"
+    return None
+
+
+#: Ranges of the settings read generically (by field name; see configs/service.toml).
+#: Upper bounds are far above any useful value, below what exhausts memory or time.
+_BOUNDS: dict[str, Check] = {
+    # [ingest] clock
+    "latency_window_s": _within(0.0, 1.0),
+    "reset_backwards_s": _within(0.0, 3600.0, lo_open=True),
+    "jump_forward_s": _within(0.0, 3600.0, lo_open=True),
+    "gap_s": _within(0.0, 60.0, lo_open=True),
+    "confirm_samples": _within(1, 1000),
+    "confirm_forward_s": _within(0.0, 3600.0, lo_open=True),
+    "conflict_samples": _within(1, 100_000),
+    "conflict_window_s": _within(0.0, 600.0, lo_open=True),
+    # [ingest.raw_imu]
+    "accel_mps2_per_lsb": _within(0.0, 1.0, lo_open=True),
+    "gyro_radps_per_lsb": _within(0.0, 1.0, lo_open=True),
+    # [estimation]
+    "g_mps2": _within(9.7, 9.9),
+    "health_rate_hz": _within(0.0, 1000.0, lo_open=True),
+    "max_gap_s": _within(0.0, 60.0, lo_open=True),
+    "handover_contamination_mps": _within(0.0, 100.0, lo_open=True),
+    "metrics_skip_s": _within(0.0, 3600.0),
+    "gamma_full_min": _within(0.0, 1000.0, lo_open=True),
+    "gamma_full_max": _within(0.0, 1000.0, lo_open=True),
+    # [fdi]
+    "sigma_meas_mps": _within(0.0, 10.0, lo_open=True),
+    "vet_delay_s": _within(0.0, 60.0, lo_open=True),
+    "bias_window_s": _within(0.0, 600.0, lo_open=True),
+    "warmup_s": _within(1.0, 600.0),
+    "gate_sigma": _within(0.0, 100.0, lo_open=True),
+    "dropout_samples": _within(1, 10_000),
+    "missing_timeout_s": _within(0.0, 60.0, lo_open=True),
+    "freeze_repeats": _within(1, 10_000),
+    "bias_samples": _within(1, 10_000),
+    "bias_threshold_mps": _within(0.0, 100.0, lo_open=True),
+    "noise_samples": _within(1, 10_000),
+    "noise_ratio_threshold": _within(0.0, 1e6, lo_open=True),
+    "k_isolate": _within(1, 10_000),
+    "recovery_s": _within(0.0, 3600.0, lo_open=True),
+    "sigma_handover_mps": _within(0.0, 100.0, lo_open=True),
+    "sigma_bias_mps2": _within(0.0, 100.0),
+    "accel_noise_density": _within(0.0, 10.0),
+    "min_imu_rate_hz": _within(0.0, 10_000.0, lo_open=True),
+    "sigma_floor_mps": _within(0.0, 10.0, lo_open=True),
+    "scale_samples": _within(1, 100_000),
+    "bias_sigma": _within(0.0, 100.0, lo_open=True),
+    "freeze_motion_mps": _within(0.0, 100.0),
+    "freeze_repeat_rate": _within(0.0, 1.0),
+    "prior_bias_mps2": _within(0.0, 100.0, lo_open=True),
+    "prior_yaw_rad": _within(0.0, 3.2, lo_open=True),
+    "correlation_samples": _within(1.0, 1000.0),
+    "max_bias_mps2": _within(0.0, 100.0, lo_open=True),
+    "change_window_s": _within(0.0, 600.0, lo_open=True),
+}
+
+
+def _bounded(name: str) -> Check:
+    """The range of a generically read field; a field without one is a programming error."""
+    try:
+        return _BOUNDS[name]
+    except KeyError:
+        raise KeyError(f"configuration field {name!r} has no range in config._BOUNDS") from None
 
 
 class _Reader:
@@ -178,17 +291,18 @@ class _Reader:
                 raise ConfigError(self.file, self.key(k), "unknown key")
 
 
-def _fields_from(r: _Reader, default: Any, checks: Mapping[str, Check]) -> dict[str, Any]:
-    """Every int/float/bool field of a frozen dataclass, read from ``r`` with its default."""
+def _fields_from(r: _Reader, default: Any) -> dict[str, Any]:
+    """Every int/float/bool field of a frozen dataclass, read from ``r`` with its default
+    and checked against its range in ``_BOUNDS``."""
     out: dict[str, Any] = {}
     for f in dataclasses.fields(default):
         v = getattr(default, f.name)
         if isinstance(v, bool):
             out[f.name] = r.get(f.name, bool, v)
         elif isinstance(v, int):
-            out[f.name] = r.get(f.name, int, v, checks.get(f.name, _positive))
+            out[f.name] = r.get(f.name, int, v, _bounded(f.name))
         elif isinstance(v, float):
-            out[f.name] = r.get(f.name, float, v, checks.get(f.name, _positive))
+            out[f.name] = r.get(f.name, float, v, _bounded(f.name))
     return out
 
 
@@ -197,7 +311,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     root = _Reader(file, data, "")
     # [service]
     svc = root.sub("service")
-    service_id = svc.get("id", str, "glmav-observer", lambda s: None if s else "must not be empty")
+    service_id = svc.get("id", str, "glmav-observer", _name)
     links_raw = svc.get("links", list, [])
     for i, link in enumerate(links_raw):
         if not isinstance(link, str) or not link:
@@ -205,18 +319,26 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     out = svc.get("out", str, "")
     if out and not out.endswith((".csv", ".jsonl")):
         raise ConfigError(file, "service.out", f"must end in .csv or .jsonl, got {out!r}")
-    rcvbuf = svc.get("udp_receive_buffer_bytes", int, 4 * 1024 * 1024, _positive)
+    rcvbuf = svc.get(
+        "udp_receive_buffer_bytes", int, 4 * 1024 * 1024, _within(4096, 1 << 30)
+    )  # a C int for setsockopt; 1 GiB is beyond any net.core.rmem_max
     svc.done()
     # [ingest]
     ing = root.sub("ingest")
     base = IngestConfig()
-    max_vehicles = ing.get("max_vehicles", int, base.max_vehicles, _positive)
-    evict_idle_s = ing.get("evict_idle_s", float, base.evict_idle_s, _positive)
-    imu_fallback_s = ing.get("imu_fallback_s", float, base.imu_fallback_s, _positive)
-    reorder_window_s = ing.get("reorder_window_s", float, base.reorder_window_s, _non_negative)
-    clock = ClockConfig(**_fields_from(ing, ClockConfig(), {"latency_window_s": _non_negative}))
+    max_vehicles = ing.get("max_vehicles", int, base.max_vehicles, _within(1, 254))
+    evict_idle_s = ing.get("evict_idle_s", float, base.evict_idle_s, _within(0, 3600, lo_open=True))
+    imu_fallback_s = ing.get(
+        "imu_fallback_s", float, base.imu_fallback_s, _within(0, 60, lo_open=True)
+    )
+    # held samples grow with the window: 1 s holds ~400 samples a vehicle, and no radio
+    # that reorders by more is usable for estimation anyway
+    reorder_window_s = ing.get(
+        "reorder_window_s", float, base.reorder_window_s, _within(0.0, MAX_REORDER_WINDOW_S)
+    )
+    clock = ClockConfig(**_fields_from(ing, ClockConfig()))
     raw = ing.sub("raw_imu")
-    raw_default = RawImuScale(**_fields_from(raw, RawImuScale(), {}))
+    raw_default = RawImuScale(**_fields_from(raw, RawImuScale()))
     by_sysid: dict[int, RawImuScale] = {}
     per = raw.sub("sysid")
     for key in list(per.table):
@@ -227,17 +349,27 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         if not 1 <= sysid <= 255:
             raise ConfigError(file, f"ingest.raw_imu.sysid.{key}", "system id must be 1..255")
         sub = per.sub(key)
-        by_sysid[sysid] = RawImuScale(**_fields_from(sub, raw_default, {}))
+        by_sysid[sysid] = RawImuScale(**_fields_from(sub, raw_default))
         sub.done()
     per.done()
     raw.done()
     ing.done()
     # [rates]
     rates = root.sub("rates")
-    request_rates = rates.get("request", bool, True)
-    window_s = rates.get("window_s", float, base.rate_window_s, _positive)
-    shortfall = rates.get("shortfall_ratio", float, base.rate_shortfall_ratio, _ratio)
-    retry_s = rates.get("retry_s", float, base.rate_retry_s, _positive)
+    rate_mode = rates.get(
+        "mode",
+        str,
+        "request",
+        lambda x: None if x in ("request", "observe") else "must be request or observe",
+    )
+    request_rates = rate_mode == "request"
+    window_s = rates.get("window_s", float, base.rate_window_s, _within(0, 60, lo_open=True))
+    retry_s = rates.get("retry_s", float, base.rate_retry_s, _within(0, 3600, lo_open=True))
+    retry_max_s = rates.get(
+        "retry_max_s", float, base.rate_retry_max_s, _within(0, 86400, lo_open=True)
+    )
+    if retry_max_s < retry_s:
+        raise ConfigError(file, "rates.retry_max_s", f"must be >= retry_s ({retry_s:g})")
     has_hz = "hz" in rates.table
     hz_r = rates.sub("hz")
     wanted: dict[str, float] = {} if has_hz else dict(DEFAULT_RATES_HZ)
@@ -247,8 +379,20 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
                 file, f"rates.hz.{name}", f"unknown message (one of {sorted(MESSAGE_IDS)})"
             )
         wanted[name] = hz_r.get(
-            name, float, 0.0, lambda x: None if x >= 0 or x == -1 else "must be >= 0, or -1"
+            name,
+            float,
+            0.0,
+            lambda x: None if 0 <= x <= 1000 or x == -1 else "must be in [0, 1000], or -1",
         )
+    min_r = rates.sub("min_hz")
+    needed: dict[str, float] = dict(DEFAULT_MIN_RATES_HZ)
+    for name in list(min_r.table):
+        if name not in MESSAGE_IDS:
+            raise ConfigError(
+                file, f"rates.min_hz.{name}", f"unknown message (one of {sorted(MESSAGE_IDS)})"
+            )
+        needed[name] = min_r.get(name, float, 0.0, _within(0, 1000))
+    min_r.done()
     hz_r.done()
     rates.done()
     ingest = IngestConfig(
@@ -260,31 +404,29 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         raw_imu_default=raw_default,
         raw_imu_by_sysid=by_sysid,
         rates_hz={k: v for k, v in wanted.items() if v != 0},
+        rates_min_hz=needed,
         rate_window_s=window_s,
-        rate_shortfall_ratio=shortfall,
         rate_retry_s=retry_s,
+        rate_retry_max_s=retry_max_s,
     )
     # [estimation]
     est = root.sub("estimation")
     e_base = EstimatorConfig()
-    gamma = {c: est.get(f"gamma_{c}", float, g, _positive) for c, g in DEFAULT_GAMMA.items()}
+    gamma = {
+        c: est.get(f"gamma_{c}", float, g, _within(0, 1000, lo_open=True))
+        for c, g in DEFAULT_GAMMA.items()
+    }
     e_form = est.get(
         "e_form",
         str,
         "exact",
         lambda s: None if s in ("exact", "small_angle") else "must be exact or small_angle",
     )
-    est_fields = _fields_from(est, e_base, {"metrics_skip_s": _non_negative})
+    est_fields = _fields_from(est, e_base)
     est.done()
     # [fdi]
     fdi_r = root.sub("fdi")
-    fdi = FdiConfig(
-        **_fields_from(
-            fdi_r,
-            FdiConfig(),
-            {"sigma_bias_mps2": _non_negative, "accel_noise_density": _non_negative},
-        )
-    )
+    fdi = FdiConfig(**_fields_from(fdi_r, FdiConfig()))
     if fdi.warmup_s < 1.0:
         raise ConfigError(file, "fdi.warmup_s", "must be >= 1.0 (the bias fit needs 1 s)")
     fdi_r.done()
@@ -295,9 +437,9 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     zenoh = ZenohSettings(
         enabled=zr.get("enabled", bool, False),
         config=zr.get("config", str, ""),
-        prefix=zr.get("prefix", str, "glmav", lambda s: None if s else "must not be empty"),
+        prefix=zr.get("prefix", str, "glmav", _key_prefix),
         decimation={
-            k: dec_r.get(k, int, 1, _non_negative) for k in ("velocity", "active", "health")
+            k: dec_r.get(k, int, 1, _within(0, 10_000)) for k in ("velocity", "active", "health")
         },
     )
     dec_r.done()
@@ -306,17 +448,21 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     rr = root.sub("rerun")
     rerun = RerunSettings(
         mode=rr.get("mode", str, "off", check_rerun_mode),
-        decimation=rr.get("decimation", int, 1, _positive),
-        serve_bind=rr.get("serve_bind", str, "127.0.0.1"),
+        decimation=rr.get("decimation", int, 1, _within(1, 10_000)),
+        serve_bind=rr.get("serve_bind", str, "127.0.0.1", _ip_address),
     )
     rr.done()
     # [security] (issue #9): the MAVLink 2 signing key; only frames signed with it pass
     sec = root.sub("security")
     key_hex = sec.get("signing_key_hex", str, "")
     key_file = sec.get("signing_key_file", str, "")
+    state_file = sec.get("signing_state_file", str, "")
     sec.done()
     signing_key = _signing_key(file, key_hex, key_file)
     mavlink_out = _mavlink_out(root, file)
+    state_path: str | None = None
+    if signing_key is not None:
+        state_path = _signing_state_path(file, state_file, signing_key)
     root.done()
     return ServiceConfig(
         service_id=service_id,
@@ -330,6 +476,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         rerun=rerun,
         mavlink_out=mavlink_out,
         signing_key=signing_key,
+        signing_state_file=state_path,
         source=file,
     )
 
@@ -365,8 +512,12 @@ def _mavlink_out(root: _Reader, file: str) -> MavlinkOutSettings:
         vision_speed_estimate=r.get("vision_speed_estimate", bool, d.vision_speed_estimate),
         statustext=r.get("statustext", bool, d.statustext),
         named_value_float=r.get("named_value_float", bool, d.named_value_float),
-        health_rate_hz=r.get("health_rate_hz", float, d.health_rate_hz, _positive),
-        sigma_measured_mps=r.get("sigma_measured_mps", float, d.sigma_measured_mps, _positive),
+        health_rate_hz=r.get(
+            "health_rate_hz", float, d.health_rate_hz, _within(0.0, 1000.0, lo_open=True)
+        ),
+        sigma_measured_mps=r.get(
+            "sigma_measured_mps", float, d.sigma_measured_mps, _within(0.0, 100.0, lo_open=True)
+        ),
     )
     r.done()
     if settings.enabled and not settings.link:
@@ -400,6 +551,24 @@ def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:
     return key
 
 
+def _signing_state_path(file: str, state_file: str, key: bytes) -> str:
+    """``[security] signing_state_file`` (relative to the config file), or by default
+    ``signing-<key id>.json`` in ``$STATE_DIRECTORY`` (systemd), else
+    ``${XDG_STATE_HOME:-~/.local/state}/glmav-observer``."""
+    import os
+
+    from glmav_observer.ingest.framing import signing_key_id
+
+    if state_file:
+        p = Path(state_file)
+        return str(p if p.is_absolute() else Path(file).parent / p)
+    base = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    if not base:
+        xdg = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+        base = str(Path(xdg) / "glmav-observer")
+    return str(Path(base) / f"signing-{signing_key_id(key)}.json")
+
+
 def check_rerun_mode(mode: str) -> str | None:
     """None if ``mode`` is a valid ``--rerun`` value, else the reason (the sink's parser)."""
     from glmav_observer.publish.rerun.mode import RerunModeError, parse_rerun_mode
@@ -420,6 +589,12 @@ def load_config(path: str | Path | None) -> ServiceConfig:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(str(p), "-", "file not found") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(
+            str(p), "-", f"not UTF-8 text (byte {err.start}: {err.object[err.start]:#04x})"
+        ) from None
+    except OSError as err:
+        raise ConfigError(str(p), "-", f"cannot read: {err.strerror}") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(str(p), "-", f"not valid TOML: {err}") from None
     return parse_config(data, str(p))

@@ -20,6 +20,7 @@ from glmav_observer.ingest.pipeline import (
     Ingest,
     IngestConfig,
     NewVehicle,
+    VehicleConflict,
     VehicleEvicted,
     VehicleReset,
 )
@@ -76,6 +77,8 @@ class Harness:
         for ev in events:
             if isinstance(ev, NewVehicle):
                 self.estimators[ev.sysid] = VehicleEstimator(ev.sysid, self.estimator_config)
+            elif isinstance(ev, VehicleConflict):
+                pass  # counted by the clock (conflicting_sources)
             elif isinstance(ev, VehicleEvicted):
                 self.estimators.pop(ev.sysid, None)
                 self.records.pop(ev.sysid, None)

@@ -9,7 +9,9 @@ Deterministic (the vehicle's clock drives everything; two runs give byte-identic
 ``--out`` files), with a progress bar on stderr for long logs and a summary on stdout:
 per configuration RMSE against SIM_STATE when the log has it, faults isolated,
 switches, samples dropped and frames rejected. ``--rrd PATH`` saves a Rerun recording.
-Exit codes: 0 done, 2 bad configuration, output path or log file.
+Exit codes: 0 done, 2 bad configuration, output path or log file (nothing in it could
+be read as MAVLink), 1 an output failed while writing (e.g. a full disk), 130/143 stopped
+by SIGINT/SIGTERM (the summary says where; the outputs end on whole records).
 """
 
 from __future__ import annotations
@@ -67,6 +69,8 @@ class _Progress:
 
 
 def main(args: argparse.Namespace) -> int:
+    import signal
+    import threading
     from pathlib import Path
 
     from glmav_observer.app import open_sinks, replay_flight_log, replay_tlog
@@ -107,6 +111,34 @@ def main(args: argparse.Namespace) -> int:
             return 2
         print(flight.to_text())
         return 0
-    summary = replay_tlog(log, config, sinks, progress=_Progress() if show else None)
+    stop = threading.Event()
+    stopped_by: list[int] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        summary = replay_tlog(
+            log, config, sinks, progress=_Progress() if show else None, stop_event=stop
+        )
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if summary.messages == 0 and not summary.cut:
+        counts = ", ".join(f"{k}={v}" for c in summary.link_counters.values() for k, v in c.items())
+        print(
+            f"glmav-observer replay: {log}: nothing could be read as MAVLink "
+            f"({log.stat().st_size} bytes, 0 frames decoded{': ' + counts if counts else ''})",
+            file=sys.stderr,
+        )
+        return 2
     print(summary.to_text())
+    if stopped_by:
+        print(f"glmav-observer replay: {summary.cut}: output cut short", file=sys.stderr)
+        return 128 + stopped_by[0]
+    if summary.failed_sinks:
+        print("glmav-observer replay: an output failed: see SINK FAILED above", file=sys.stderr)
+        return 1
     return 0

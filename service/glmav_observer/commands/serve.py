@@ -1,25 +1,26 @@
 """``glmav-observer serve``: the daemon (links -> estimates -> sinks) until SIGINT/SIGTERM.
 
-``--link`` connection strings (repeatable; default: ``[service].links`` of the config,
-else ``udpin:127.0.0.1:14550``), ``--config configs/service.toml``, ``--zenoh PATH.json5``
-(enables Zenoh with that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve``
-and ``--out PATH.csv|.jsonl`` override the file. ``--workers N`` (default: the number of
-cores) shards vehicles by system id across N worker processes
-(:mod:`glmav_observer.fleet.workers`; ``--workers 1`` is the single-process service);
-``--claim`` makes this service estimate only the vehicles it claims on Zenoh, so that
-several services can share one fleet (:mod:`glmav_observer.fleet.claims`).
-``--service-id NAME`` names this service on Zenoh (in every payload, its liveliness token
-and its config key; a second service with the same id on one Zenoh network refuses to
-start); ``--mavlink-out CONN`` sends the active estimate back on MAVLink
-(``[mavlink_out]``, :mod:`glmav_observer.publish.mavlink_out`). Exit codes: 0 stopped
-cleanly, 2 bad configuration or link, or a namesake already running.
+``--link`` connection strings (repeatable; default: ``[service].links`` of the config).
+There is no built-in link: 14550 is the ground stations' port, and a daemon that took it
+by default would steal the vehicle from the GCS (docs/deployment.md shows where to
+attach). ``--config configs/service.toml``, ``--zenoh PATH.json5`` (enables Zenoh with
+that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve`` and ``--out
+PATH.csv|.jsonl`` override the file. ``--workers N`` (default 1) shards vehicles by
+system id across N worker processes (:mod:`glmav_observer.fleet.workers`; ``--workers
+1`` is the single-process service); ``--claim`` makes this service estimate only the
+vehicles it claims on Zenoh, so that several services can share one fleet
+(:mod:`glmav_observer.fleet.claims`). ``--service-id NAME`` names this service on Zenoh
+(in every payload, its liveliness token and its config key; a second service with the
+same id on one Zenoh network refuses to start); ``--mavlink-out CONN`` sends the active
+estimate back on MAVLink (``[mavlink_out]``, :mod:`glmav_observer.publish.mavlink_out`).
+Exit codes: 0 stopped cleanly, 2 bad configuration or link (a UDP port another process
+holds, a malformed string, a missing device), or a namesake already running.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +28,8 @@ if TYPE_CHECKING:
     from glmav_observer.config import ServiceConfig
     from glmav_observer.publish.sink import Sink
 
-DEFAULT_LINK = "udpin:127.0.0.1:14550"
+#: What the "no link" message suggests: a loopback port a router forwards to (not 14550).
+EXAMPLE_LINK = "udpin:127.0.0.1:14551"
 
 logger = logging.getLogger(__name__)
 
@@ -40,7 +42,8 @@ def register(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--link", action="append", default=None, metavar="CONN",
-                   help=f"pymavlink connection string, repeatable (default {DEFAULT_LINK})")  # fmt: skip
+                   help="pymavlink connection string, repeatable (default: [service].links; "
+                        f"required otherwise, e.g. {EXAMPLE_LINK})")  # fmt: skip
     p.add_argument("--config", default=None, help="service.toml (default: built-in defaults)")
     p.add_argument("--zenoh", default=None, metavar="PATH.json5",
                    help="enable Zenoh with this session config")  # fmt: skip
@@ -48,7 +51,8 @@ def register(sub: Any) -> None:
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
     p.add_argument("--workers", type=_workers, default=None, metavar="N",
-                   help="worker processes, vehicles sharded by system id (default: cores)")  # fmt: skip
+                   help="worker processes, vehicles sharded by system id (default 1; the "
+                   "number of cores: --workers $(nproc))")  # fmt: skip
     p.add_argument("--claim", action="store_true",
                    help="estimate only the vehicles claimed on Zenoh (several services, one fleet)")  # fmt: skip
     p.add_argument("--mavlink-out", default=None, metavar="CONN",
@@ -71,21 +75,15 @@ def _workers(text: str) -> int:
     return n
 
 
-def default_workers() -> int:
-    """The number of cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
-
-
 def main(args: argparse.Namespace) -> int:
     from glmav_observer.app import open_sinks, serve
     from glmav_observer.config import ConfigError, check_rerun_mode, load_config
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSinkError
 
-    workers = args.workers if args.workers is not None else default_workers()
+    # default 1: the sharded router does not yet carry every guarantee of the single
+    # process (exclusive UDP ports, signing state, sink isolation: docs/deployment.md)
+    workers = args.workers if args.workers is not None else 1
     try:
         config = load_config(args.config)
         if args.service_id is not None:
@@ -101,11 +99,16 @@ def main(args: argparse.Namespace) -> int:
             config = replace(config, mavlink_out=out)
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
-        links = args.link or list(config.links) or [DEFAULT_LINK]
+        links = args.link or list(config.links)
     except (ConfigError, OSError, ValueError) as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     if workers > 1:
+        try:
+            _check_links(links)
+        except LinkError as err:
+            print(f"glmav-observer serve: {err}", file=sys.stderr)
+            return 2
         return _main_sharded(args, config, links, workers)
     try:
         sinks = open_sinks(
@@ -118,6 +121,13 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, FileSinkError, OSError, ValueError) as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
+    try:  # links are checked once the outputs' own errors have been reported
+        _check_links(links)
+    except (ConfigError, LinkError) as err:
+        for sink in sinks:
+            sink.close()
+        print(f"glmav-observer serve: {err}", file=sys.stderr)
+        return 2
     if args.claim:
         return _main_claim(config, sinks, links)
     try:
@@ -126,7 +136,23 @@ def main(args: argparse.Namespace) -> int:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     print(summary.to_text())
+    if summary.failed_sinks:
+        print("glmav-observer serve: an output failed: see SINK FAILED above", file=sys.stderr)
+        return 1
     return 0
+
+
+def _check_links(links: list[str]) -> None:
+    """Raise LinkError for no link or a malformed connection string."""
+    from glmav_observer.ingest.links import LinkError, check_connection_string
+
+    if not links:
+        raise LinkError(
+            f"no link given: pass --link (e.g. --link {EXAMPLE_LINK} behind MAVProxy or "
+            "mavlink-router; docs/deployment.md) or set [service].links"
+        )
+    for conn in links:
+        check_connection_string(conn)
 
 
 def _main_claim(config: ServiceConfig, sinks: list[Sink], links: list[str]) -> int:

@@ -304,7 +304,7 @@ def _worker_main(
             nv = len(service.ingest.vehicles)
             if nv != n_vehicles or now >= next_rate_check:
                 n_vehicles = nv
-                service.rate_requests()
+                service.rate_requests(now)
                 next_rate_check = now + RATE_CHECK_PERIOD_S
             if service.outbox:
                 outbox.send(("out", list(service.outbox)))

@@ -15,8 +15,23 @@ far in the future) is much more likely a corrupt one, so a new timeline is adopt
 only when ``confirm_samples`` consecutive samples agree on it (``RESET``: the caller
 restarts that vehicle's bank); until then they are dropped and counted
 (``time_backwards`` / ``time_jump``, or ``late`` when less than ``reset_backwards_s``
-back: a vehicle rebooted soon after its previous boot is confirmed the same way). Gaps longer than ``gap_s`` are counted and
-reported.
+back: a vehicle rebooted soon after its previous boot is confirmed the same way).
+
+Forward steps are confirmed the same way once they exceed ``confirm_forward_s`` (1 s,
+the estimator's ``max_gap_s``: a step that long restarts the bank): one outlier frame
+stamped +29 s is dropped (``time_jump``) and the genuine samples after it go on as
+before; after a real outage the first ``confirm_samples - 1`` samples are dropped and
+the rest accepted (a ``gap``; beyond ``jump_forward_s`` a ``clock_jump`` reset). Gaps
+longer than ``gap_s`` are counted and reported.
+
+Two sources with one system id (a spoofer, or two vehicles misconfigured alike) show
+as a stream of samples off the timeline that advance together (each later than the
+previous off-timeline one by at most ``reset_backwards_s``: a second running clock,
+not scattered or repeated corrupt stamps): ``conflict_samples`` of them within ``conflict_window_s``
+of host time (the vehicle's own time jumps between the two) make the clock ``conflicting`` (counted
+``conflicting_sources``); it stays so until ``conflict_window_s`` passes without one.
+A reboot gives ``confirm_samples`` of them (5), a jittery link none (``late`` samples
+are on the timeline).
 
 ``time_usec`` larger than ``EPOCH_THRESHOLD_US`` (2001-09-09 as a UNIX time; 31 years
 as an uptime) is UNIX-epoch time. It is mapped to boot time with SYSTEM_TIME's pair
@@ -55,6 +70,9 @@ class ClockConfig:
     jump_forward_s: float = 30.0
     gap_s: float = 0.5
     confirm_samples: int = 5
+    confirm_forward_s: float = 1.0
+    conflict_samples: int = 20
+    conflict_window_s: float = 5.0
 
 
 @dataclass
@@ -68,6 +86,11 @@ class VehicleClock:
     gaps: list[tuple[float, float]] = field(default_factory=list)
     _last_t_by_stream: dict[str, float] = field(default_factory=dict)
     _pending: list[float] = field(default_factory=list)
+    #: host time of each recent off-timeline sample (for ``conflicting``)
+    _off_timeline: collections.deque[float] = field(default_factory=collections.deque)
+    _last_off_t_s: float | None = None
+    #: two sources seem to share this system id (see the module docstring)
+    conflicting: bool = False
 
     def note_system_time(self, time_unix_usec: int, time_boot_ms: int) -> None:
         """SYSTEM_TIME: the exact UNIX-to-boot offset, if the vehicle knows UNIX time."""
@@ -90,19 +113,34 @@ class VehicleClock:
             return (t_us - self.epoch_offset_us) * 1e-6
         return t_us * 1e-6
 
-    def admit(self, stream: str, t_s: float) -> Admission:
-        """Decide about a sample of ``stream`` (message name) at vehicle time ``t_s``."""
+    def admit(self, stream: str, t_s: float, t_host_s: float | None = None) -> Admission:
+        """Decide about a sample of ``stream`` (message name) at vehicle time ``t_s``.
+
+        ``t_host_s`` (arrival, host clock) times the detection of conflicting sources;
+        without it there is none."""
         cfg = self.config
         now = self.t_now_s
         if now is None:
             self._adopt(stream, t_s)
             return Admission.ACCEPT
-        if t_s < now - cfg.reset_backwards_s or t_s > now + cfg.jump_forward_s:
+        if t_s < now - cfg.reset_backwards_s or t_s > now + cfg.confirm_forward_s:
+            last_off, self._last_off_t_s = self._last_off_t_s, t_s
+            if (
+                t_host_s is not None
+                and last_off is not None
+                and 0.0 < t_s - last_off <= cfg.reset_backwards_s
+            ):
+                self._note_off_timeline(t_host_s)  # a second coherent timeline, not noise
             self._pending.append(t_s)
             p = self._pending
             if len(p) >= cfg.confirm_samples and max(p) - min(p) <= cfg.reset_backwards_s:
-                self.counters["clock_reset" if t_s < now else "clock_jump"] += 1
                 self._pending = []
+                if now < t_s <= now + cfg.jump_forward_s:  # an outage: same timeline, a gap
+                    self.counters["gap"] += 1
+                    self.gaps.append((now, t_s))
+                    self._adopt(stream, t_s)
+                    return Admission.ACCEPT
+                self.counters["clock_reset" if t_s < now else "clock_jump"] += 1
                 self._last_t_by_stream.clear()
                 self.t_now_s = None
                 self.epoch_offset_us = None
@@ -110,6 +148,12 @@ class VehicleClock:
                 return Admission.RESET
             self.counters["time_backwards" if t_s < now else "time_jump"] += 1
             return Admission.PENDING
+        if (
+            self.conflicting
+            and t_host_s is not None
+            and t_host_s - self._off_timeline[-1] > cfg.conflict_window_s
+        ):
+            self.conflicting = False  # one source remains
         if t_s < now - cfg.latency_window_s:
             # older than the window: late, unless ``confirm_samples`` in a row agree on a
             # new timeline (a vehicle rebooted less than ``reset_backwards_s`` after boot)
@@ -142,6 +186,16 @@ class VehicleClock:
         self.counters["reordered"] += 1
         self._last_t_by_stream[stream] = t_s
         return Admission.REORDERED
+
+    def _note_off_timeline(self, t_host_s: float) -> None:
+        cfg = self.config
+        dq = self._off_timeline
+        dq.append(t_host_s)
+        while dq and dq[0] < t_host_s - cfg.conflict_window_s:
+            dq.popleft()
+        if not self.conflicting and len(dq) >= cfg.conflict_samples:
+            self.conflicting = True
+            self.counters["conflicting_sources"] += 1
 
     def _adopt(self, stream: str, t_s: float) -> None:
         self.t_now_s = t_s

@@ -16,7 +16,7 @@ checks the CRC with the message's CRC-extra):
 
 Every rejection is counted by reason in ``FrameCounters`` (``bad_crc``, ``truncated``,
 ``bad_header``, ``garbage_bytes``, ``unknown_message``; with a signing key also
-``unsigned``, ``bad_signature`` and ``replayed``). A ``.tlog`` (8-byte
+``unsigned``, ``bad_signature``, ``replayed`` and ``stale``). A ``.tlog`` (8-byte
 big-endian µs host timestamp before every frame) is read by :func:`iter_tlog` with
 the same rules.
 """
@@ -24,9 +24,13 @@ the same rules.
 from __future__ import annotations
 
 import collections
+import contextlib
 import hashlib
+import json
 import logging
+import os
 import struct
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -65,9 +69,115 @@ class FrameCounters:
         return sum(self.counts[k] for k in ("bad_crc", "bad_header", "truncated"))
 
 
-def new_dialect() -> Any:
-    """A dialect codec object (ardupilotmega, a superset of common), used for decode and pack."""
-    return mavlink_dialect.MAVLink(None, srcSystem=255, srcComponent=190)
+#: MAVLink 2 signing timestamps: 10 µs units since 2015-01-01T00:00:00Z.
+SIGNING_EPOCH_UNIX_S = 1_420_070_400
+#: The signing spec's freshness bound: a new stream's first timestamp may be at most one
+#: minute older than the newest timestamp known (10 µs units).
+SIGNING_NEW_STREAM_MAX_AGE = 6_000_000
+
+
+def signing_key_id(key: bytes) -> str:
+    """A public name of a key (the first 8 bytes of its SHA-256, hex): state files say
+    which key their timestamps belong to without holding it."""
+    return hashlib.sha256(key).hexdigest()[:16]
+
+
+class SigningState:
+    """MAVLink 2 signing freshness, shared by every link of a service and persisted.
+
+    ``streams``: the last accepted timestamp of each (link id, system, component);
+    ``newest``: the newest timestamp accepted on any stream. A frame of a known stream
+    must be newer than its stream's last; the first frame of a new stream must be at
+    most one minute (``SIGNING_NEW_STREAM_MAX_AGE``) older than ``newest`` (the spec's
+    rule; ``newest`` plays the local clock, so a vehicle signing with a boot-relative
+    clock works). With a ``path`` the state survives restarts: frames captured before
+    a restart are refused as ``replayed`` (known streams) or ``stale`` (new ones). The
+    file holds the key's id (:func:`signing_key_id`), never the key, and is written
+    atomically (``save``), mode 0600."""
+
+    def __init__(self, key: bytes, path: str | os.PathLike[str] | None = None) -> None:
+        self.key_id = signing_key_id(key)
+        self.path = None if path is None else os.fspath(path)
+        self.streams: dict[tuple[int, int, int], int] = {}
+        self.newest = -1
+        self.dirty = False
+        if self.path is not None:
+            self._load()
+
+    def _load(self) -> None:
+        assert self.path is not None
+        try:
+            with open(self.path, encoding="utf-8") as f:
+                doc = json.load(f)
+        except FileNotFoundError:
+            return
+        except (OSError, ValueError) as err:
+            raise ValueError(f"{self.path}: unreadable signing state: {err}") from None
+        if not isinstance(doc, dict) or doc.get("key_id") != self.key_id:
+            logger.warning(
+                "signing state of another key: starting afresh", extra={"path": self.path}
+            )
+            return
+        try:
+            self.newest = int(doc["newest"])
+            for k, ts in doc["streams"].items():
+                link, sysid, compid = (int(x) for x in k.split(":"))
+                self.streams[(link, sysid, compid)] = int(ts)
+        except (KeyError, ValueError, TypeError, AttributeError) as err:
+            raise ValueError(f"{self.path}: malformed signing state: {err!r}") from None
+
+    def check(self, stream: tuple[int, int, int], ts: int) -> str | None:
+        """None if ``ts`` is fresh for ``stream`` (then recorded), else the reason."""
+        last = self.streams.get(stream)
+        if last is not None:
+            if ts <= last:
+                return "replayed"
+        elif ts < self.newest - SIGNING_NEW_STREAM_MAX_AGE:
+            return "stale"
+        self.streams[stream] = ts
+        self.newest = max(self.newest, ts)
+        self.dirty = True
+        return None
+
+    def save(self) -> None:
+        """Write the state (if persisted and changed); an OSError is logged, not raised."""
+        if self.path is None or not self.dirty:
+            return
+        doc = {
+            "key_id": self.key_id,
+            "newest": self.newest,
+            "streams": {f"{a}:{b}:{c}": ts for (a, b, c), ts in sorted(self.streams.items())},
+        }
+        tmp = f"{self.path}.tmp"
+        try:
+            os.makedirs(os.path.dirname(self.path) or ".", mode=0o700, exist_ok=True)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(doc, f)
+            os.replace(tmp, self.path)
+            self.dirty = False
+        except OSError as err:
+            logger.warning("signing state not saved", extra={"path": self.path, "error": str(err)})
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+    def outgoing_timestamp(self) -> int:
+        """A timestamp for what we sign: the wall clock, never below what is known."""
+        wall = int((time.time() - SIGNING_EPOCH_UNIX_S) * 100_000)
+        return max(wall, self.newest + 1)
+
+
+def new_dialect(signing: SigningState | None = None, key: bytes | None = None) -> Any:
+    """A dialect codec object (ardupilotmega, a superset of common), used for decode and
+    pack. With ``key`` (and its ``signing`` state), everything packed with it is signed
+    (link id 0) with timestamps from :meth:`SigningState.outgoing_timestamp`."""
+    mav = mavlink_dialect.MAVLink(None, srcSystem=255, srcComponent=190)
+    if key is not None:
+        mav.signing.secret_key = key
+        mav.signing.link_id = 0
+        mav.signing.sign_outgoing = True
+        mav.signing.timestamp = signing.outgoing_timestamp() if signing is not None else 0
+    return mav
 
 
 def _frame_length(buf: bytes | bytearray, p: int, n: int) -> int | None:
@@ -94,6 +204,7 @@ class FrameDecoder:
         datagram: bool,
         counters: FrameCounters | None = None,
         signing_key: bytes | None = None,
+        signing_state: SigningState | None = None,
     ) -> None:
         self._mav = new_dialect()
         if signing_key is not None and len(signing_key) != 32:
@@ -102,7 +213,11 @@ class FrameDecoder:
         # pymavlink (2.4.50 records a stream's timestamp before checking the signature,
         # so one forged frame with a high timestamp would lock the real vehicle out).
         self._signing_key = signing_key
-        self._sign_ts: dict[tuple[int, int, int], int] = {}  # (link, sys, comp) -> last
+        self.signing_state = (
+            signing_state
+            if signing_state is not None
+            else (SigningState(signing_key) if signing_key is not None else None)
+        )
         self._sign_reason = ""
         self._buf = bytearray()
         self._datagram = datagram
@@ -127,7 +242,7 @@ class FrameDecoder:
 
     def _signature_ok(self, frame: bytearray) -> bool:
         """MAVLink 2 signature: SHA-256(key + frame without the last 6 bytes)[:6], and a
-        48-bit timestamp (10 µs units) that increases per (link id, system, component)."""
+        48-bit timestamp (10 µs units) fresh by :class:`SigningState`'s rules."""
         if frame[0] != MAGIC_V2 or not frame[2] & _IFLAG_SIGNED:
             self._sign_reason = "unsigned"
             return False
@@ -137,10 +252,11 @@ class FrameDecoder:
             return False
         stream = (frame[-13], frame[5], frame[6])
         ts = int.from_bytes(frame[-12:-6], "little")
-        if ts <= self._sign_ts.get(stream, -1):
-            self._sign_reason = "replayed"
+        assert self.signing_state is not None
+        reason = self.signing_state.check(stream, ts)  # only after the signature is verified
+        if reason is not None:
+            self._sign_reason = reason
             return False
-        self._sign_ts[stream] = ts  # only after the signature is verified
         return True
 
     def feed(self, data: bytes | bytearray) -> list[MavMessage]:

@@ -1,16 +1,25 @@
 """Links: pymavlink connection strings as byte transports (the edge of ingest).
 
 We use ``pymavlink.mavutil`` only to open what users name in the connection strings
-they know (``udpin:``, ``udpout:``, ``tcp:``, ``tcpin:``, serial devices ``/dev/...``
-with an optional ``,BAUD``); its own parser is not used: bytes go to our
+they know (``udpout:``, ``tcp:``, ``tcpin:``, serial devices ``/dev/...`` with an
+optional ``,BAUD``, through pyserial); its own parser is not used: bytes go to our
 :class:`~glmav_observer.ingest.framing.FrameDecoder`, which counts every bad frame.
 ``.tlog`` files are replayed by :func:`glmav_observer.app.replay_tlog`, not here.
+
+``udpin:HOST:PORT`` (and its alias ``udp:``) is opened here, not by mavutil: mavutil
+sets ``SO_REUSEADDR``, with which any local process that binds the same port with the
+same option shares it and takes the vehicle's datagrams. Our socket sets neither
+``SO_REUSEADDR`` nor ``SO_REUSEPORT``, so the port is ours alone: a port another
+process holds (a ground station, a second ``serve``) is a :class:`LinkError` naming
+it, and nobody can bind it while we hold it.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
+import errno
+import importlib.util
 import logging
 import socket
 import time
@@ -28,24 +37,91 @@ class LinkError(ValueError):
     """A connection string that cannot be opened (named in the message)."""
 
 
+#: kinds of connection string that name HOST:PORT (the port is checked before opening)
+_NET_KINDS = ("udpin", "udp", "udpout", "udpbcast", "tcp", "tcpin")
+
+
+def check_connection_string(conn: str) -> tuple[str, str, int] | None:
+    """(kind, host, port) of a network connection string, None for a serial device.
+
+    Raises :class:`LinkError` for an empty string, a missing host or a port that is
+    not a number in 1..65535 (pymavlink would raise OverflowError or ValueError)."""
+    if not conn or not conn.strip():
+        raise LinkError("empty connection string (e.g. udpin:127.0.0.1:14551)")
+    kind, sep, rest = conn.partition(":")
+    if not sep or kind not in _NET_KINDS:
+        if conn.startswith(("/", "COM")):
+            return None  # a serial device, opened by mavutil through pyserial
+        raise LinkError(
+            f"{conn}: unknown connection string (udpin:HOST:PORT, udpout:HOST:PORT, "
+            "tcp:HOST:PORT, tcpin:HOST:PORT or a serial device /dev/...[,BAUD])"
+        )
+    host, sep, port_s = rest.rpartition(":")
+    if not sep or not host:
+        raise LinkError(f"{conn}: expected {kind}:HOST:PORT")
+    try:
+        port = int(port_s)
+    except ValueError:
+        raise LinkError(f"{conn}: port {port_s!r} is not a number") from None
+    if not 1 <= port <= 65535:
+        raise LinkError(f"{conn}: port {port} is not in 1..65535")
+    return kind, host, port
+
+
+def _bind_exclusive_udp(conn: str, host: str, port: int, rcvbuf: int) -> socket.socket:
+    """A UDP socket bound to host:port that no other process can share (see the module)."""
+    try:
+        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except OSError as err:
+        raise LinkError(f"{conn}: cannot resolve {host!r}: {err}") from None
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
+        sock.bind(infos[0][4])
+    except OSError as err:
+        sock.close()
+        if err.errno == errno.EADDRINUSE:
+            raise LinkError(
+                f"{conn}: UDP port {port} is already taken by another process "
+                "(a ground station, a router or another serve?); "
+                "choose another port or stop that process"
+            ) from None
+        raise LinkError(f"{conn}: cannot bind {host}:{port}: {err}") from None
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+    except OSError as err:  # a limit of the OS: keep the default buffer
+        logger.warning("SO_RCVBUF not set", extra={"link": conn, "error": str(err)})
+    sock.setblocking(False)
+    return sock
+
+
 class Link:
     """One open link: ``read()`` returns the bytes available (one datagram for UDP)."""
 
     def __init__(self, conn: str, *, udp_receive_buffer_bytes: int = 4 * 1024 * 1024) -> None:
-        from pymavlink import mavutil  # deferred: mavutil changes os.environ at import
-
         self.conn = conn
         self.datagram = conn.startswith(("udpin:", "udpout:", "udp:", "udpbcast:"))
         if conn.endswith(".tlog"):
             raise LinkError(f"{conn}: a .tlog is replayed with `glmav-observer replay`")
-        try:
-            self._m: Any = mavutil.mavlink_connection(
-                conn, source_system=255, source_component=190, autoreconnect=True
-            )
-        except (OSError, ValueError) as err:
-            raise LinkError(f"{conn}: cannot open: {err}") from err
+        parsed = check_connection_string(conn)
         #: the sender of the last datagram read (UDP), to answer that vehicle
         self.peer: Any = None
+        self._m: Any = None
+        if parsed is not None and parsed[0] in ("udpin", "udp"):
+            self._sock: socket.socket | None = _bind_exclusive_udp(
+                conn, parsed[1], parsed[2], udp_receive_buffer_bytes
+            )
+        else:
+            self._sock = self._open_mavutil(conn, serial=parsed is None)
+            if self._sock is not None:
+                self._sock.setblocking(False)
+                if self.datagram:
+                    try:
+                        self._sock.setsockopt(
+                            socket.SOL_SOCKET, socket.SO_RCVBUF, udp_receive_buffer_bytes
+                        )
+                    except OSError as err:  # a limit of the OS: keep the default buffer
+                        logger.warning("SO_RCVBUF not set", extra={"link": conn, "error": str(err)})
         #: link events (``tcp_disconnects``, ``tcp_reconnects``)
         self.counters: collections.Counter[str] = collections.Counter()
         #: a TCP client link (``tcp:HOST:PORT``) reconnects on EOF or error, with backoff
@@ -53,17 +129,23 @@ class Link:
         self._down = False
         self._retry_at = 0.0
         self._backoff_s = RECONNECT_FIRST_S
+
+    def _open_mavutil(self, conn: str, *, serial: bool) -> socket.socket | None:
+        """Open ``conn`` with mavutil; its socket if it has one (None for serial)."""
+        from pymavlink import mavutil  # deferred: mavutil changes os.environ at import
+
+        if serial and importlib.util.find_spec("serial") is None:
+            raise LinkError(f"{conn}: serial links need pyserial (pip install pyserial)")
+        try:
+            self._m = mavutil.mavlink_connection(
+                conn, source_system=255, source_component=190, autoreconnect=True
+            )
+        except (OSError, ValueError, OverflowError) as err:
+            raise LinkError(f"{conn}: cannot open: {err}") from None
+        except Exception as err:  # pyserial's SerialException and other driver errors
+            raise LinkError(f"{conn}: cannot open: {err}") from None
         port = getattr(self._m, "port", None)
-        self._sock: socket.socket | None = port if isinstance(port, socket.socket) else None
-        if self._sock is not None:
-            self._sock.setblocking(False)
-            if self.datagram:
-                try:
-                    self._sock.setsockopt(
-                        socket.SOL_SOCKET, socket.SO_RCVBUF, udp_receive_buffer_bytes
-                    )
-                except OSError as err:  # a limit of the OS: keep the default buffer
-                    logger.warning("SO_RCVBUF not set", extra={"link": conn, "error": str(err)})
+        return port if isinstance(port, socket.socket) else None
 
     def fileno(self) -> int | None:
         """The descriptor to wait on, None while a TCP link is down (``read`` reconnects)."""
@@ -124,7 +206,7 @@ class Link:
                 if self.datagram:
                     data, addr = self._sock.recvfrom(_UDP_MAX)
                     self.peer = addr
-                    if getattr(self._m, "udp_server", False):
+                    if self._m is not None and getattr(self._m, "udp_server", False):
                         self._m.last_address = addr  # replies go to the sender
                     return data
                 data = self._sock.recv(_UDP_MAX)
@@ -145,6 +227,11 @@ class Link:
     def write(self, data: bytes, peer: Any = None) -> None:
         """Send ``data``; on a UDP server link to ``peer`` (a vehicle's address) if given."""
         try:
+            if self._m is None:  # our own udpin socket: answer the given or last sender
+                to = peer if peer is not None else self.peer
+                if to is not None and self._sock is not None:
+                    self._sock.sendto(data, to)
+                return
             if peer is not None and self._sock is not None and self.datagram:
                 self._sock.sendto(data, peer)
                 return
@@ -155,5 +242,6 @@ class Link:
     def close(self) -> None:
         if self._sock is not None:
             self._sock.close()
-        with contextlib.suppress(OSError):
-            self._m.close()
+        if self._m is not None:
+            with contextlib.suppress(OSError):
+                self._m.close()

@@ -3,8 +3,10 @@
 :class:`Ingest` owns, for every vehicle (MAVLink system id) it has admitted, the clock
 (:class:`~glmav_observer.ingest.clock.VehicleClock`), the counters and the rate monitor.
 A vehicle is created on its first sample message (``ATTITUDE``, an IMU message,
-``LOCAL_POSITION_NED``, ``SIM_STATE``), so ground stations in the same stream never
-become vehicles. The number of vehicles is capped: a new system id beyond the cap
+``LOCAL_POSITION_NED``, ``SIM_STATE``) or on its first ``HEARTBEAT`` from an autopilot
+(``autopilot`` not ``MAV_AUTOPILOT_INVALID``, ``type`` not ``MAV_TYPE_GCS``), so that a
+vehicle streaming nothing yet (ArduPilot's default rates are 0) can be asked for its
+streams; ground stations and companion computers never become vehicles. The number of vehicles is capped: a new system id beyond the cap
 evicts the vehicle idle longest if it has been silent for ``evict_idle_s`` (host
 time), otherwise the newcomer is dropped and counted (an unknown-sysid flood cannot
 grow memory or disturb the vehicles being estimated).
@@ -69,7 +71,19 @@ class VehicleEvicted:
     sysid: int
 
 
-IngestEvent = Sample | VehicleReset | NewVehicle | VehicleEvicted
+@dataclass(frozen=True, slots=True)
+class VehicleConflict:
+    """Two sources seem to share this system id (``active``), or one remains again."""
+
+    sysid: int
+    active: bool
+
+
+IngestEvent = Sample | VehicleReset | NewVehicle | VehicleEvicted | VehicleConflict
+
+#: MAVLink: HEARTBEAT.autopilot of a component that is not an autopilot; type of a GCS.
+MAV_AUTOPILOT_INVALID = 8
+MAV_TYPE_GCS = 6
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,9 +97,11 @@ class IngestConfig:
     raw_imu_default: RawImuScale = field(default_factory=RawImuScale)
     raw_imu_by_sysid: Mapping[int, RawImuScale] = field(default_factory=dict)
     rates_hz: Mapping[str, float] = field(default_factory=dict)
+    #: the rates the estimator needs: below them a stream is asked for (rates.py)
+    rates_min_hz: Mapping[str, float] = field(default_factory=dict)
     rate_window_s: float = 2.0
-    rate_shortfall_ratio: float = 0.8
     rate_retry_s: float = 5.0
+    rate_retry_max_s: float = 60.0
     #: Vehicle seconds a sample is held so that samples jittered out of order on the link
     #: are released in vehicle-time order (0: none, samples are processed on arrival).
     reorder_window_s: float = 0.0
@@ -108,6 +124,8 @@ class VehicleInput:
     held: list[tuple[float, int, str, Sample]] = field(default_factory=list)
     held_count: int = 0
     newest_t_s: float | None = None
+    #: samples are withheld from estimation: two sources share the system id
+    conflict: bool = False
 
 
 class Ingest:
@@ -136,7 +154,12 @@ class Ingest:
             clock=VehicleClock(cfg.clock, counters),
             counters=counters,
             rates=RateMonitor(
-                cfg.rates_hz, cfg.rate_window_s, cfg.rate_shortfall_ratio, cfg.rate_retry_s
+                cfg.rates_hz,
+                cfg.rates_min_hz,
+                cfg.rate_window_s,
+                cfg.rate_retry_s,
+                cfg.rate_retry_max_s,
+                t_registered_s=t_host_s,
             ),
             raw_scale=cfg.raw_imu_by_sysid.get(sysid, cfg.raw_imu_default),
             t_host_last_s=t_host_s,
@@ -153,6 +176,8 @@ class Ingest:
         if name == "SYSTEM_TIME" and v is not None:
             v.clock.note_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
             return []
+        if name == "HEARTBEAT":
+            return self._heartbeat(msg, sysid, v, t_host_s)
         if name not in SAMPLE_MESSAGES:
             self.counters["ignored_messages"] += 1
             return []
@@ -196,17 +221,42 @@ class Ingest:
         clk = self.config.clock
         newest = v.newest_t_s
         if newest is not None and not (
-            newest - clk.reset_backwards_s <= t_s <= newest + clk.jump_forward_s
+            newest - clk.reset_backwards_s <= t_s <= newest + clk.confirm_forward_s
         ):
-            # far off the timeline (a reboot or a corrupt stamp): no reordering across it;
-            # release what is held, then let the clock decide about this sample
+            # far off the timeline (a reboot, an outage or a corrupt stamp): no reordering
+            # across it; release what is held, then let the clock decide about this sample
             self._release(v, math.inf, events)
             self._admit(v, name, t_s, sample, events)
+            v.newest_t_s = v.clock.t_now_s  # the clock's timeline: the new one if adopted
             return events
         v.newest_t_s = t_s if newest is None else max(newest, t_s)
         heapq.heappush(v.held, (t_s, v.held_count, name, sample))
         v.held_count += 1
         self._release(v, v.newest_t_s - window, events)
+        return events
+
+    def _heartbeat(
+        self, msg: Any, sysid: int, v: VehicleInput | None, t_host_s: float
+    ) -> list[IngestEvent]:
+        """A HEARTBEAT: registers an autopilot not seen yet (to ask it for its streams)."""
+        if int(msg.autopilot) == MAV_AUTOPILOT_INVALID or int(msg.type) == MAV_TYPE_GCS:
+            self.counters["ignored_messages"] += 1
+            return []
+        compid = int(msg.get_srcComponent())
+        if v is not None:
+            if compid == v.compid:
+                v.t_host_last_s = t_host_s
+                v.counters["heartbeat"] += 1
+            else:
+                self.counters["ignored_messages"] += 1
+            return []
+        before = set(self.vehicles)
+        v = self._new_vehicle(sysid, compid, t_host_s)
+        if v is None:
+            return []
+        v.counters["heartbeat"] += 1
+        events: list[IngestEvent] = [VehicleEvicted(s) for s in before - set(self.vehicles)]
+        events.append(NewVehicle(sysid, compid))
         return events
 
     def _release(self, v: VehicleInput, t_max_s: float, events: list[IngestEvent]) -> None:
@@ -228,15 +278,27 @@ class Ingest:
     ) -> None:
         """The vehicle's clock decides; an admitted sample is appended to ``events``."""
         if name not in UNTIMED_MESSAGES:
-            adm = v.clock.admit(name, t_s)
-            if adm is Admission.RESET:
+            adm = v.clock.admit(name, t_s, v.t_host_last_s)
+            if v.clock.conflicting != v.conflict:
+                v.conflict = v.clock.conflicting
+                events.append(VehicleConflict(v.sysid, v.conflict))
+                logger.warning(
+                    "conflicting sources: estimation stopped"
+                    if v.conflict
+                    else "one source remains: estimation resumes",
+                    extra={"sysid": v.sysid},
+                )
+            if adm is Admission.RESET and not v.conflict:
                 events.append(VehicleReset(v.sysid, t_s, "clock_reset"))
                 v.imu_source = None
             elif adm not in (Admission.ACCEPT, Admission.REORDERED):
                 return
+        if v.conflict:
+            v.counters["conflicting_sources_dropped"] += 1
+            return
         if isinstance(sample, ImuSample) and not self._imu_wanted(v, sample):
             return
-        v.rates.note(name, t_s)
+        v.rates.note(name, t_s, v.t_host_last_s)
         events.append(sample)
 
     def _imu_wanted(self, v: VehicleInput, s: ImuSample) -> bool:
@@ -257,14 +319,14 @@ class Ingest:
         v.counters["imu_superseded"] += 1
         return False
 
-    def rate_requests(self, sysid: int, first: bool) -> list[RateRequest]:
-        """SET_MESSAGE_INTERVAL requests due for ``sysid`` (initial ones, or shortfalls)."""
+    def rate_requests(self, sysid: int, t_host_s: float) -> list[RateRequest]:
+        """SET_MESSAGE_INTERVAL requests due for ``sysid`` at host time ``t_host_s``."""
         v = self.vehicles.get(sysid)
-        if v is None or v.clock.t_now_s is None:
+        if v is None:
             return []
-        if first:
-            return v.rates.initial_requests(sysid, v.compid, v.clock.t_now_s)
-        reqs = v.rates.shortfalls(sysid, v.compid, v.clock.t_now_s)
-        if reqs:
-            v.counters["rate_rerequest"] += len(reqs)
+        reqs = v.rates.due_requests(sysid, v.compid, t_host_s)
+        for r in reqs:
+            v.counters["rate_requests"] += 1
+            if v.rates.asked(r.message) > 1:
+                v.counters["rate_rerequest"] += 1
         return reqs

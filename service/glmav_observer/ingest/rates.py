@@ -1,10 +1,20 @@
-"""Message rates: what we ask the vehicle for, what arrives, and when to ask again.
+"""Message rates: what arrives, and when (and whether) to ask the vehicle for more.
 
-Ground stations are known to override stream rates (a QGroundControl or MAVProxy on
-the same vehicle sends its own ``SET_MESSAGE_INTERVAL`` / ``REQUEST_DATA_STREAM``), so
-the service measures the rate it actually receives, in vehicle time, and asks again
-(``MAV_CMD_SET_MESSAGE_INTERVAL``) when a stream falls below ``shortfall_ratio`` of
-the configured rate, at most once per ``retry_s`` per message.
+Measurement. Each stream's rate is measured in the vehicle's own time over its last
+``window_s``: (samples - 1) / (newest - oldest stamp), the inverse of the mean sample
+spacing, which is what a vehicle's scheduler sets and what MAVSDK reports. A stream
+silent for ``window_s`` of host time is at 0 Hz.
+
+Requests (``[rates] mode``). A ground station on the same link sets rates too (QGC,
+MAVSDK's ``set_rate_*``), so the service is polite:
+
+- ``"request"`` (default): one ``window_s`` after a vehicle is first heard (a HEARTBEAT
+  is enough), every stream below the rate the estimator **needs** (``min_hz``; for the
+  IMU, any of HIGHRES_IMU/SCALED_IMU/RAW_IMU counts) is asked for at the configured
+  rate (``MAV_CMD_SET_MESSAGE_INTERVAL``); a stream that is fast enough is never
+  touched, whoever set it. A stream still short is asked again after ``retry_s``,
+  then twice as long each time, up to ``retry_max_s``.
+- ``"observe"``: nothing is ever sent; rates are only measured and published.
 """
 
 from __future__ import annotations
@@ -28,6 +38,9 @@ MESSAGE_IDS: dict[str, int] = {
     "GPS_RAW_INT": mavlink_dialect.MAVLINK_MSG_ID_GPS_RAW_INT,
 }
 
+#: IMU messages: the estimator needs one of them.
+IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "RAW_IMU")
+
 
 @dataclass(frozen=True, slots=True)
 class RateRequest:
@@ -41,63 +54,100 @@ class RateRequest:
 
 @dataclass
 class RateMonitor:
-    """Per-vehicle received rates over a sliding window of vehicle time."""
+    """Per-vehicle received rates (vehicle time) and the request schedule (host time).
+
+    ``wanted_hz``: the rate to ask for (-1: ask the vehicle to stop the stream);
+    ``min_hz``: below this a stream is short (0: never asked for again)."""
 
     wanted_hz: Mapping[str, float]
+    min_hz: Mapping[str, float] = field(default_factory=dict)
     window_s: float = 2.0
-    shortfall_ratio: float = 0.8
     retry_s: float = 5.0
+    retry_max_s: float = 60.0
+    #: host time the vehicle was first heard (the first check is ``window_s`` later)
+    t_registered_s: float | None = None
     _times: dict[str, collections.deque[float]] = field(default_factory=dict)
-    _last_request_s: dict[str, float] = field(default_factory=dict)
-    _t_first_s: float | None = None
+    _last_host_s: dict[str, float] = field(default_factory=dict)
+    _t_host_now_s: float = 0.0
+    _next_check_s: dict[str, float] = field(default_factory=dict)
+    _asked: collections.Counter[str] = field(default_factory=collections.Counter)
 
-    def note(self, message: str, t_s: float) -> None:
-        """A sample of ``message`` arrived at vehicle time ``t_s``."""
-        if self._t_first_s is None:
-            self._t_first_s = t_s
+    def note(self, message: str, t_s: float, t_host_s: float) -> None:
+        """A sample of ``message`` stamped ``t_s`` (vehicle) arrived at host time ``t_host_s``."""
         dq = self._times.get(message)
         if dq is None:
             dq = self._times[message] = collections.deque()
+        if dq and t_s < dq[-1]:
+            dq.clear()  # the vehicle's clock went back (a reboot): measure afresh
         dq.append(t_s)
-        while dq and dq[0] < t_s - self.window_s:
+        while dq[0] < t_s - self.window_s:
             dq.popleft()
+        self._last_host_s[message] = t_host_s
+        self._t_host_now_s = max(self._t_host_now_s, t_host_s)
 
-    def rate_hz(self, message: str, t_now_s: float) -> float:
-        """Messages per second of vehicle time over the last ``window_s``."""
+    def rate_hz(self, message: str, t_host_s: float | None = None) -> float:
+        """Samples per second of vehicle time over the stream's last ``window_s``; 0 if
+        it has been silent for ``window_s`` of host time (default: the latest arrival)."""
         dq = self._times.get(message)
-        if not dq:
+        if not dq or len(dq) < 2:
             return 0.0
-        span = min(self.window_s, max(t_now_s - (self._t_first_s or t_now_s), 1e-9))
-        n = sum(1 for t in dq if t >= t_now_s - span)
-        return n / span
+        now = self._t_host_now_s if t_host_s is None else t_host_s
+        if now - self._last_host_s.get(message, now) > self.window_s:
+            return 0.0
+        span = dq[-1] - dq[0]
+        return (len(dq) - 1) / span if span > 0 else 0.0
 
-    def rates(self, t_now_s: float) -> dict[str, float]:
-        return {m: round(self.rate_hz(m, t_now_s), 3) for m in sorted(self._times)}
+    def rates(self, _t_now_s: float | None = None) -> dict[str, float]:
+        """Every measured stream's rate (Hz, 3 decimals); the argument is ignored (the
+        estimator passes its vehicle time)."""
+        return {m: round(self.rate_hz(m), 3) for m in sorted(self._times)}
 
-    def initial_requests(self, sysid: int, compid: int, t_now_s: float) -> list[RateRequest]:
-        """The configured rates, requested when the vehicle is first seen."""
-        for m in self.wanted_hz:
-            self._last_request_s[m] = t_now_s
-        return [RateRequest(sysid, compid, m, hz) for m, hz in self.wanted_hz.items()]
+    def _short(self, message: str, t_host_s: float) -> bool:
+        need = self.min_hz.get(message, 0.0)
+        if message in IMU_MESSAGES:
+            have = max(self.rate_hz(m, t_host_s) for m in IMU_MESSAGES)
+        else:
+            have = self.rate_hz(message, t_host_s)
+        return have < need
 
-    def shortfalls(self, sysid: int, compid: int, t_now_s: float) -> list[RateRequest]:
-        """Requests to send again: streams below ``shortfall_ratio`` of what we asked for.
-
-        Judged only after a full window since the vehicle (or the last request) appeared.
-        """
+    def due_requests(self, sysid: int, compid: int, t_host_s: float) -> list[RateRequest]:
+        """The requests to send now (see the module docstring); schedules the next check."""
+        if self.t_registered_s is None:
+            self.t_registered_s = t_host_s
+        if t_host_s - self.t_registered_s < self.window_s:
+            return []  # measure a full window before judging
         out: list[RateRequest] = []
-        if self._t_first_s is None or t_now_s - self._t_first_s < self.window_s:
-            return out
         for m, hz in self.wanted_hz.items():
-            if hz <= 0:
-                continue  # a stream we asked to stop
-            last = self._last_request_s.get(m, -float("inf"))
-            if t_now_s - last < max(self.retry_s, self.window_s):
+            if t_host_s < self._next_check_s.get(m, 0.0):
                 continue
-            if self.rate_hz(m, t_now_s) < self.shortfall_ratio * hz:
-                self._last_request_s[m] = t_now_s
+            if hz < 0:  # ask once to stop it
+                if not self._asked[m]:
+                    out.append(RateRequest(sysid, compid, m, hz))
+                    self._asked[m] += 1
+                self._next_check_s[m] = float("inf")
+                continue
+            if hz == 0:
+                self._next_check_s[m] = float("inf")
+                continue
+            if self.min_hz.get(m, 0.0) <= 0.0:
+                # not needed by the estimator (SIM_STATE): asked once if absent, never again
+                if self.rate_hz(m, t_host_s) == 0.0:
+                    out.append(RateRequest(sysid, compid, m, hz))
+                    self._asked[m] += 1
+                self._next_check_s[m] = float("inf")
+                continue
+            if self._short(m, t_host_s):
                 out.append(RateRequest(sysid, compid, m, hz))
+                backoff = min(self.retry_s * 2.0 ** self._asked[m], self.retry_max_s)
+                self._asked[m] += 1
+                self._next_check_s[m] = t_host_s + max(backoff, self.window_s)
+            else:
+                self._next_check_s[m] = t_host_s + self.window_s
         return out
+
+    def asked(self, message: str) -> int:
+        """How many times ``message`` was requested."""
+        return self._asked[message]
 
 
 def encode_rate_request(mav: object, req: RateRequest) -> bytes:

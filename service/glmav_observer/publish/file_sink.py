@@ -7,15 +7,24 @@ CSV: records of different kinds have different columns, so the CSV has the union
 the columns of every record kind (fixed, in the order below) and a ``kind`` column
 (the record's ``schema``); columns a kind does not have are empty. JSON lines: one
 object per line, keys in the record's own order, NaN as null.
+
+Whole lines only: rows are buffered in memory (up to ``FLUSH_BYTES``) and written with
+``os.write``; the size of the file after the last fully written buffer is remembered.
+When a write fails (a full disk, a file size limit, an I/O error) the file is cut back
+to that size, so it ends on a whole line, and :class:`FileSinkWriteError` says so; the
+service then isolates the sink and carries on with the others.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import math
+import os
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from glmav_observer.records import Record, flatten
 
@@ -35,8 +44,16 @@ CSV_COLUMNS: tuple[str, ...] = (
 )  # fmt: skip
 
 
+#: Buffered bytes that trigger a write (one syscall per ~64 kB, not one per row).
+FLUSH_BYTES = 64 * 1024
+
+
 class FileSinkError(ValueError):
     """An output path the sink cannot write (bad suffix)."""
+
+
+class FileSinkWriteError(OSError):
+    """Writing failed (e.g. the disk is full); the file was cut back to its last whole line."""
 
 
 def _cell(x: Any) -> str:
@@ -58,14 +75,18 @@ class FileSink:
         if suffix not in (".csv", ".jsonl"):
             raise FileSinkError(f"{self.path}: output must end in .csv or .jsonl")
         self._csv = suffix == ".csv"
-        self._f: IO[str] | None = self.path.open("w", encoding="utf-8", newline="")
+        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._buf = io.StringIO(newline="")
+        #: bytes on disk that end on a whole line; rows in them
+        self.committed_bytes = 0
+        self.committed_rows = 0
         self.rows = 0
+        self._writer = csv.writer(self._buf, lineterminator="\n")
         if self._csv:
-            self._writer = csv.writer(self._f, lineterminator="\n")
             self._writer.writerow(CSV_COLUMNS)
 
     def write(self, record: Record) -> None:
-        if self._f is None:
+        if self._fd is None:
             return
         row = flatten(record)
         if self._csv:
@@ -75,14 +96,44 @@ class FileSink:
                 k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                 for k, v in row.items()
             }
-            self._f.write(json.dumps(clean, separators=(",", ":"), allow_nan=False) + "\n")
+            self._buf.write(json.dumps(clean, separators=(",", ":"), allow_nan=False) + "\n")
         self.rows += 1
+        if self._buf.tell() >= FLUSH_BYTES:
+            self.flush()
 
     def flush(self) -> None:
-        if self._f is not None:
-            self._f.flush()
+        """Write the buffered rows; on failure cut the file to its last whole line and raise."""
+        if self._fd is None:
+            return
+        data = self._buf.getvalue().encode("utf-8")
+        self._buf.seek(0)
+        self._buf.truncate(0)
+        view = memoryview(data)
+        try:
+            while view:
+                n = os.write(self._fd, view)
+                view = view[n:]
+        except OSError as err:
+            fd, self._fd = self._fd, None
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, self.committed_bytes)
+            with contextlib.suppress(OSError):
+                os.close(fd)
+            raise FileSinkWriteError(
+                err.errno,
+                f"{self.path}: write failed ({err.strerror}); the file ends at its last "
+                f"whole line ({self.committed_rows} rows, {self.committed_bytes} bytes); "
+                f"{self.rows - self.committed_rows} rows not written",
+            ) from None
+        self.committed_bytes += len(data)
+        self.committed_rows = self.rows
 
     def close(self) -> None:
-        if self._f is not None:
-            self._f.close()
-            self._f = None
+        if self._fd is None:
+            return
+        try:
+            self.flush()
+        finally:
+            if self._fd is not None:
+                os.close(self._fd)
+                self._fd = None

@@ -2,7 +2,10 @@
 
 Supported (the strings users know from pymavlink / MAVProxy):
 
-- ``udpout:HOST:PORT``: send to HOST:PORT; replies come back on the same socket.
+- ``udpout:HOST:PORT``: send to HOST:PORT; replies come back on the same socket. The
+  socket is connected to HOST:PORT: the kernel binds it to the address that reaches
+  HOST (loopback for 127.0.0.1, never ``0.0.0.0``) and delivers only that peer's
+  datagrams, so commands from any other sender never reach the vehicle.
 - ``udpin:HOST:PORT`` (alias ``udp:``): listen on HOST:PORT; send to the last peer heard.
 - ``tcp:HOST:PORT``: connect to a TCP server.
 - ``tcpin:HOST:PORT``: listen for TCP clients; send to all of them.
@@ -80,7 +83,8 @@ class UdpLink(Link):
                 self.peer: tuple[str, int] | None = None
             else:
                 # resolve now so that a bad host fails at open, not on first send
-                socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+                infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+                self.sock.connect(infos[0][4])  # bound to the route's address; peer only
                 self.peer = (host, port)
         except OSError as e:
             self.sock.close()
@@ -92,7 +96,10 @@ class UdpLink(Link):
         if self.peer is None:
             return
         try:
-            self.sock.sendto(buf, self.peer)
+            if self.listen:
+                self.sock.sendto(buf, self.peer)
+            else:
+                self.sock.send(buf)  # connected
             self.sent_packets += 1
         except OSError as e:
             self._failed(e)

@@ -133,11 +133,17 @@ def test_serve_publishes_what_it_estimates_from_the_sitl(
             return replies
 
         # the last estimate has arrived when the subscriber holds the state's latest seq
+        # and that seq has stopped moving (3 polls, 0.6 s: the service has worked off
+        # its socket backlog; a stop no longer drains it without bound, issue 18.6)
+        seen: list[int | None] = []
+
         def caught_up() -> bool:
             state = query("glmav/7/state").get("glmav/7/state")
             last = state["velocity"]["active"]["seq"] if state else None
+            seen.append(last)
             got = [v["seq"] for k, _, v in samples if k == "glmav/7/velocity/active"]
-            return last is not None and bool(got) and got[-1] == last
+            stable = len(seen) >= 3 and seen[-3] == seen[-2] == last
+            return last is not None and stable and bool(got) and got[-1] == last
 
         assert wait_until(caught_up, 20, period_s=0.2)
         state = query("glmav/*/state")["glmav/7/state"]

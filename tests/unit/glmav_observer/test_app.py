@@ -1,4 +1,5 @@
-"""Service in process: rate requests and re-requests when a stream falls short; summary."""
+"""Service in process: the rate request policy (ingest/rates.py) on a silent vehicle, a
+vehicle whose rates a ground station set, and one that stays short; summary."""
 
 from __future__ import annotations
 
@@ -8,45 +9,97 @@ from glmav_observer.app import Service
 from glmav_observer.config import parse_config
 from glmav_observer.ingest.framing import FrameDecoder
 
+_MAV = dialect.MAVLink(None, srcSystem=3, srcComponent=1)
+
 
 def _att(t_ms: int) -> bytes:
-    mav = dialect.MAVLink(None, srcSystem=3, srcComponent=1)
-    return bytes(dialect.MAVLink_attitude_message(t_ms, 0, 0, 0, 0, 0, 0).pack(mav))
+    return bytes(dialect.MAVLink_attitude_message(t_ms, 0, 0, 0, 0, 0, 0).pack(_MAV))
 
 
-def _commands(outbox: list) -> list:
+def _heartbeat(autopilot: int = dialect.MAV_AUTOPILOT_ARDUPILOTMEGA, kind: int = 2) -> bytes:
+    return bytes(dialect.MAVLink_heartbeat_message(kind, autopilot, 0, 0, 0, 3).pack(_MAV))
+
+
+def _commands(svc: Service) -> list:
     dec = FrameDecoder(datagram=True)
-    return [m for _, frame, _ in outbox for m in dec.feed(frame)]
-
-
-def test_rates_requested_on_first_sight_and_again_when_short() -> None:
-    cfg = parse_config(
-        {"rates": {"hz": {"ATTITUDE": 100.0, "RAW_IMU": -1.0}, "window_s": 2.0, "retry_s": 5.0}}
-    )
-    svc = Service(cfg, [])
-    svc.feed_bytes("udp", _att(1000), 0.0)
-    svc.rate_requests()
-    first = _commands(svc.outbox)
+    out = [m for _, frame, _ in svc.outbox for m in dec.feed(frame)]
     svc.outbox.clear()
-    by_msg = {int(c.param1): c for c in first}
-    assert all(c.command == dialect.MAV_CMD_SET_MESSAGE_INTERVAL for c in first)
-    assert all(c.target_system == 3 and c.target_component == 1 for c in first)
+    return out
+
+
+def _service(mode: str = "request") -> Service:
+    return Service(
+        parse_config(
+            {
+                "rates": {
+                    "mode": mode,
+                    "hz": {"ATTITUDE": 100.0, "RAW_IMU": -1.0},
+                    "min_hz": {"ATTITUDE": 10.0},
+                    "window_s": 2.0,
+                    "retry_s": 5.0,
+                    "retry_max_s": 20.0,
+                }
+            }
+        )
+    )
+
+
+def test_a_silent_vehicle_is_registered_on_its_heartbeat_and_asked_once_a_window_later() -> None:
+    svc = _service()
+    svc.feed_bytes(
+        "udp", _heartbeat(autopilot=dialect.MAV_AUTOPILOT_INVALID), 0.0
+    )  # a GCS/companion
+    svc.feed_bytes("udp", _heartbeat(kind=dialect.MAV_TYPE_GCS), 0.0)
+    assert svc.ingest.vehicles == {}
+    svc.feed_bytes("udp", _heartbeat(), 0.0)  # ArduCopter with every stream rate at 0
+    assert list(svc.ingest.vehicles) == [3]
+    svc.rate_requests(1.9)
+    assert _commands(svc) == []  # a full window is measured first (window_s = 2 s)
+    svc.rate_requests(2.0)
+    by_msg = {int(c.param1): c for c in _commands(svc)}
+    assert set(by_msg) == {dialect.MAVLINK_MSG_ID_ATTITUDE, dialect.MAVLINK_MSG_ID_RAW_IMU}
+    assert all(c.command == dialect.MAV_CMD_SET_MESSAGE_INTERVAL for c in by_msg.values())
+    assert all(c.target_system == 3 and c.target_component == 1 for c in by_msg.values())
     assert by_msg[dialect.MAVLINK_MSG_ID_ATTITUDE].param2 == 10_000.0  # µs: 100 Hz
     assert by_msg[dialect.MAVLINK_MSG_ID_RAW_IMU].param2 == -1.0  # stop the stream
-    # a ground station overrides the rate: ATTITUDE arrives at 10 Hz only
-    times = []
-    for k in range(1, 121):  # 12 s of vehicle time
-        svc.feed_bytes("udp", _att(1000 + 100 * k), 0.0)
-        svc.rate_requests()
-        for c in _commands(svc.outbox):
-            assert int(c.param1) == dialect.MAVLINK_MSG_ID_ATTITUDE  # -1 streams are not chased
-            times.append(1.0 + 0.1 * k)
-        svc.outbox.clear()
-    # asked again after the first full window past retry_s, then every retry_s
-    assert len(times) == 2, times
-    assert abs(times[1] - times[0] - 5.0) < 0.11
-    assert svc.summary().service_counters["rate_rerequest"] == 2
-    assert svc.summary().vehicles[3].counters["rx_ATTITUDE"] == 121
+
+
+def test_a_rate_set_by_a_ground_station_above_the_need_is_left_alone() -> None:
+    svc = _service()
+    svc.feed_bytes("udp", _heartbeat(), 0.0)
+    asked: list[float] = []
+    # MAVSDK's set_rate_attitude_euler(20): 20 Hz, above the 10 Hz the estimator needs
+    for k in range(60 * 20):  # 60 s, host time = vehicle time
+        t = 0.05 * k
+        svc.feed_bytes("udp", _att(round(1000 * t)), t)
+        if k % 20 == 0:
+            svc.rate_requests(t)
+            asked += [t for c in _commands(svc) if int(c.param1) == dialect.MAVLINK_MSG_ID_ATTITUDE]
+    assert asked == []  # never overridden (was: re-requested every 5 s, 11 times in 60 s)
+    assert svc.summary().vehicles[3].counters["rx_ATTITUDE"] == 1200
+    health_rates = svc.ingest.vehicles[3].rates.rates()
+    assert abs(health_rates["ATTITUDE"] - 20.0) < 1e-6  # 40 intervals of exactly 50 ms
+
+
+def test_a_short_stream_is_asked_again_with_backoff_and_observe_mode_sends_nothing() -> None:
+    for mode, expected in (("request", [2.0, 7.0, 17.0, 37.0, 57.0]), ("observe", [])):
+        svc = _service(mode)
+        svc.feed_bytes("udp", _heartbeat(), 0.0)
+        asked: list[float] = []
+        for k in range(60 * 5):  # 5 Hz, below the 10 Hz needed, for 60 s
+            t = 0.2 * k
+            svc.feed_bytes("udp", _att(round(1000 * t)), t)
+            if k % 5 == 0:
+                svc.rate_requests(t)
+                asked += [
+                    round(t, 3)
+                    for c in _commands(svc)
+                    if int(c.param1) == dialect.MAVLINK_MSG_ID_ATTITUDE
+                ]
+        # after the first window, then 5, 10, 20 (retry_max_s), 20 s later
+        assert asked == expected, mode
+        counters = svc.summary().service_counters
+        assert counters.get("rate_requests_sent", 0) == len(expected) + (mode == "request")
 
 
 def test_summary_text_is_plain_lines_and_says_when_no_velocity_arrived() -> None:

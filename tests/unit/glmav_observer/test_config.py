@@ -28,9 +28,9 @@ def test_shipped_file_documents_the_defaults() -> None:
 @pytest.mark.parametrize(
     ("doc", "key", "reason"),
     [
-        ({"fdi": {"bias_threshold_mps": -1.0}}, "fdi.bias_threshold_mps", "must be > 0"),
+        ({"fdi": {"bias_threshold_mps": -1.0}}, "fdi.bias_threshold_mps", r"must be in \(0, 100\]"),
         ({"fdi": {"k_isolate": "3"}}, "fdi.k_isolate", "expected int"),
-        ({"fdi": {"warmup_s": 0.5}}, "fdi.warmup_s", ">= 1.0"),
+        ({"fdi": {"warmup_s": 0.5}}, "fdi.warmup_s", r"must be in \[1, 600\]"),
         ({"estimation": {"e_form": "approx"}}, "estimation.e_form", "exact or small_angle"),
         ({"estimation": {"gama_full": 3.0}}, "estimation.gama_full", "unknown key"),
         ({"rates": {"hz": {"FOO": 10.0}}}, "rates.hz.FOO", "unknown message"),
@@ -65,8 +65,50 @@ def test_cli_exit_code_2_on_bad_config(tmp_path: Path, capsys: pytest.CaptureFix
     log.write_bytes(b"")
     assert main(["replay", str(log), "--config", str(bad)]) == 2
     err = capsys.readouterr().err
-    assert "bad.toml" in err and "fdi.k_isolate" in err and "must be > 0" in err
+    assert "bad.toml" in err and "fdi.k_isolate" in err and "must be in [1, 10000]" in err
     broken = tmp_path / "broken.toml"
     broken.write_text("[fdi\n", encoding="utf-8")
     assert main(["serve", "--config", str(broken)]) == 2
     assert "not valid TOML" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("doc", "key", "reason"),
+    [
+        # issue 18.5: each of these passed validation and failed later (or never)
+        ({"ingest": {"reorder_window_s": 1e9}}, "ingest.reorder_window_s", r"\[0, 1\]"),
+        (
+            {"service": {"udp_receive_buffer_bytes": 9223372036854775807}},
+            "service.udp_receive_buffer_bytes",
+            r"\[4096, 1073741824\]",
+        ),
+        ({"rerun": {"serve_bind": "not an ip"}}, "rerun.serve_bind", "must be an IP address"),
+        ({"service": {"id": "a b/c"}}, "service.id", "1 to 64 characters"),
+        ({"zenoh": {"prefix": "glmav/**"}}, "zenoh.prefix", "no wildcards"),
+        ({"ingest": {"max_vehicles": 100_000}}, "ingest.max_vehicles", r"\[1, 254\]"),
+        ({"ingest": {"confirm_samples": 0}}, "ingest.confirm_samples", r"\[1, 1000\]"),
+        ({"rates": {"hz": {"ATTITUDE": 1e6}}}, "rates.hz.ATTITUDE", r"\[0, 1000\], or -1"),
+        ({"rates": {"mode": "always"}}, "rates.mode", "request or observe"),
+        ({"rates": {"retry_s": 10.0, "retry_max_s": 5.0}}, "rates.retry_max_s", ">= retry_s"),
+        ({"estimation": {"gamma_full": 1e12}}, "estimation.gamma_full", r"\(0, 1000\]"),
+        ({"fdi": {"k_isolate": 10**9}}, "fdi.k_isolate", r"\[1, 10000\]"),
+        ({"zenoh": {"decimation": {"health": -1}}}, "zenoh.decimation.health", r"\[0, 10000\]"),
+    ],
+)
+def test_every_value_has_a_range(doc: dict, key: str, reason: str) -> None:
+    with pytest.raises(ConfigError, match=reason) as info:
+        parse_config(doc, "my.toml")
+    assert info.value.key == key
+
+
+def test_every_generic_field_has_a_range() -> None:
+    """A new numeric field of the clock, the estimator or the FDI must get a range in
+    config._BOUNDS (or loading the defaults fails loudly, naming it)."""
+    cfg = parse_config({})
+    assert cfg.ingest.clock.confirm_forward_s == 1.0
+    assert cfg.ingest.rates_min_hz == {
+        "ATTITUDE": 10.0,
+        "HIGHRES_IMU": 50.0,
+        "LOCAL_POSITION_NED": 5.0,
+        "SIM_STATE": 0.0,
+    }

@@ -92,3 +92,57 @@ def test_reboot_soon_after_boot_is_confirmed_too() -> None:
     assert c2.admit("A", 1.7) is Admission.ACCEPT
     assert c2.admit("B", 0.6) is Admission.LATE
     assert c2.counters["clock_reset"] == 0
+
+
+def test_one_outlier_frame_29_s_ahead_is_dropped_and_the_stream_goes_on() -> None:
+    """Issue 18.8: one frame stamped +29 s was accepted (under jump_forward_s = 30 s): the
+    bank restarted on the 29 s "gap" and the genuine samples after it were late."""
+    c = _clock()
+    for k in range(100):
+        assert c.admit("IMU", 10.0 + 0.004 * k) is Admission.ACCEPT
+    assert c.admit("ATT", 10.4 + 29.0) is Admission.PENDING
+    assert [c.admit("IMU", 10.4 + 0.004 * k) for k in range(50)] == [Admission.ACCEPT] * 50
+    assert c.counters["time_jump"] == 1
+    assert c.counters["gap"] == 0 and c.counters["late"] == 0 and c.counters["clock_jump"] == 0
+    assert c.t_now_s is not None and c.t_now_s < 11.0
+
+
+def test_a_real_outage_is_confirmed_then_a_gap() -> None:
+    """After 1.5 s of silence the first ``confirm_samples - 1`` samples wait (16 ms at
+    250 Hz), then the timeline goes on with one gap, no reset."""
+    c = _clock(confirm_samples=5, confirm_forward_s=1.0)
+    c.admit("IMU", 5.0)
+    got = [c.admit("IMU", 6.5 + 0.004 * k) for k in range(8)]
+    assert got == [Admission.PENDING] * 4 + [Admission.ACCEPT] * 4
+    assert c.counters["gap"] == 1 and c.gaps == [(5.0, 6.516)]
+    assert c.counters["clock_reset"] == 0 and c.counters["clock_jump"] == 0
+
+
+def test_two_sources_with_one_system_id_are_flagged_until_one_remains() -> None:
+    """Issue 18.9: two clocks 7 s apart, interleaved: samples off the current timeline
+    that advance together are a second source; 20 within 5 s of host time flag it. A
+    reboot (5 off-timeline samples) or scattered corrupt stamps do not."""
+    c = _clock(conflict_samples=20, conflict_window_s=5.0)
+    t_host = 0.0
+    for k in range(250):  # 1 s of source A alone
+        t_host = 0.004 * k
+        c.admit("IMU", 3.0 + t_host, t_host)
+    assert not c.conflicting
+    for k in range(250, 500):  # B, 7 s ahead, interleaved with A
+        t_host = 0.004 * k
+        c.admit("IMU", 3.0 + t_host, t_host)
+        c.admit("IMU", 10.0 + t_host, t_host)
+    assert c.conflicting and c.counters["conflicting_sources"] == 1
+    for k in range(500, 2000):  # A alone again: cleared once 5 s pass without B
+        t_host = 0.004 * k
+        c.admit("IMU", 3.0 + t_host + 0.0001, t_host)
+        if k * 0.004 < 2.0 + 5.0 - 0.01:
+            assert c.conflicting, k
+    assert not c.conflicting
+    # a reboot: 5 off-timeline samples, a reset, no conflict
+    r = _clock()
+    for k in range(100):
+        r.admit("IMU", 100.0 + 0.004 * k, 0.004 * k)
+    for k in range(10):
+        r.admit("IMU", 0.1 + 0.004 * k, 0.4 + 0.004 * k)
+    assert r.counters["clock_reset"] == 1 and not r.conflicting

@@ -59,7 +59,10 @@ def test_best_imu_source_wins_and_falls_back() -> None:
     ing.on_message(_roundtrip(hr(1_000_000, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)), 0.0)
     assert ing.on_message(_roundtrip(raw(1_010_000, 0, 0, -1000, 0, 0, 0, 0, 0, 0)), 0.0) == []
     assert ing.vehicles[1].counters["imu_superseded"] == 1
-    # HIGHRES silent for > 1 s: RAW is used again
+    # HIGHRES silent for > 1 s (the vehicle's clock goes on with ATTITUDE): RAW is used again
+    for t_ms in (1500, 2000):
+        att = dialect.MAVLink_attitude_message(t_ms, 0, 0, 0, 0, 0, 0)
+        assert len(ing.on_message(_roundtrip(att), 0.0)) == 1
     (s,) = ing.on_message(_roundtrip(raw(2_100_000, 0, 0, -1000, 0, 0, 0, 0, 0, 0)), 0.0)
     assert isinstance(s, ImuSample)
     assert s.source is ImuSource.RAW_IMU
