@@ -127,6 +127,12 @@ class ServiceSummary:
                     "  no velocity measurement received (LOCAL_POSITION_NED): every estimate is "
                     "dead reckoning from the IMU, and fault detection never ran"
                 )
+            if v.counters.get("fdi_off_imu_too_slow", 0):
+                lines.append(
+                    f"  fault detection off for {v.counters['fdi_off_imu_too_slow']} velocity "
+                    "samples: the IMU stream was below [fdi] min_imu_rate_hz (only dropout "
+                    "and freeze were tested)"
+                )
             if v.truth_samples:
                 lines.append(f"  RMSE vs SIM_STATE (n, e, d) m/s over {v.truth_samples} samples:")
                 for cfg, r in v.rmse_ned_mps.items():

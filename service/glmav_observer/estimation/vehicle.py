@@ -373,6 +373,10 @@ class VehicleEstimator:
             return
         faulty_before = set(self.fdi.faulty_axes())
         imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
+        if imu_hz < self.cfg.fdi.min_imu_rate_hz:
+            # the residual tests cannot arm: said in health (counter, axis_state "warmup")
+            # and in the replay/serve summary
+            self.counters["fdi_off_imu_too_slow"] += 1
         verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, self._ints(), imu_hz)
         if t > self._t_y_s:  # running mean of the measurement interval (time constant 20 samples)
             dt_y = min(t - self._t_y_s, self.cfg.max_gap_s)

@@ -135,7 +135,7 @@ def test_summary_text_is_plain_lines_and_says_when_no_velocity_arrived() -> None
     summary = ServiceSummary(
         vehicles={
             1: vehicle(1, {"rx_ATTITUDE": 10, "rx_HIGHRES_IMU": 25, "late": 2}),
-            2: vehicle(2, {"rx_LOCAL_POSITION_NED": 3}),
+            2: vehicle(2, {"rx_LOCAL_POSITION_NED": 3, "fdi_off_imu_too_slow": 3}),
         },
         link_counters={},
         service_counters={},
@@ -152,3 +152,5 @@ def test_summary_text_is_plain_lines_and_says_when_no_velocity_arrived() -> None
     v1, v2 = text.split("vehicle 2:")
     assert "no velocity measurement received (LOCAL_POSITION_NED)" in v1
     assert "no velocity measurement" not in v2
+    assert "fault detection off for 3 velocity samples" in v2
+    assert "fault detection off" not in v1
