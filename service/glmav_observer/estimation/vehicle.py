@@ -373,7 +373,7 @@ class VehicleEstimator:
             return
         faulty_before = set(self.fdi.faulty_axes())
         imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
-        if imu_hz < self.cfg.fdi.min_imu_rate_hz:
+        if 0.0 < imu_hz < self.cfg.fdi.min_imu_rate_hz:
             # the residual tests cannot arm: said in health (counter, axis_state "warmup")
             # and in the replay/serve summary
             self.counters["fdi_off_imu_too_slow"] += 1
