@@ -31,7 +31,7 @@ Missing stream. No velocity measurement for the timeout is not a fault of an axi
 configuration dead-reckons (all axes unmeasured) until samples come back; no switch.
 
 The autopilot's word. ``LOCAL_POSITION_NED`` from ArduPilot or PX4 is the autopilot's own
-estimate; while ``EKF_STATUS_REPORT`` or ``GPS_RAW_INT`` say it is not aided (GPS lost), the
+estimate; while ``EKF_STATUS_REPORT`` (or, from an autopilot without it, ``GPS_RAW_INT``) says it is not aided (GPS lost), the
 axes concerned are isolated as ``unaided`` and re-admitted when it is aided again.
 
 Active estimate and hand-over. ``full`` while every axis is healthy. When the FDI
@@ -437,15 +437,19 @@ class VehicleEstimator:
         return tuple(self._b_int), (c[0], c[1], c[2])
 
     def _aiding_sample(self, s: AidingSample) -> None:
-        """The autopilot's word on what its velocity rests on (any source saying 'not
-        aided' wins; a source that says nothing about a direction does not vote)."""
+        """The autopilot's word on what its velocity rests on. Its estimator's own report
+        (EKF_STATUS_REPORT) is the authority when it sends one: it knows what it fuses (an
+        ArduSub vehicle has no GPS fix and an aided velocity from other sensors). Without
+        one, GPS_RAW_INT's fix type decides the horizontal axes."""
         self._aiding[s.source] = (s.horizontal_aided, s.vertical_aided)
         if self.t_bank_s is None:
             return
-        horiz = [h for h, _ in self._aiding.values() if h is not None]
-        vert = [v for _, v in self._aiding.values() if v is not None]
+        src = "EKF_STATUS_REPORT" if "EKF_STATUS_REPORT" in self._aiding else s.source
+        if s.source != src:
+            return
+        horiz, vert = self._aiding[src]
         faulty_before = set(self.fdi.faulty_axes())
-        self.fdi.set_unaided(s.t_boot_s, all(horiz) if horiz else None, all(vert) if vert else None)
+        self.fdi.set_unaided(s.t_boot_s, horiz, vert)
         if set(self.fdi.faulty_axes()) != faulty_before:
             self.counters[f"aiding_{s.reason or 'restored'}"] += 1
             self._after_fdi(s.t_boot_s, faulty_before)
