@@ -147,7 +147,11 @@ def test_a_log_with_nothing_readable_is_exit_2(
     log.write_bytes(content)
     assert main(["replay", str(log)]) == 2  # was 0 with "messages 0"
     err = capsys.readouterr().err
-    assert f"{log}: nothing could be read as MAVLink ({len(content)} bytes" in err
+    if kind == "empty":  # an empty file is an empty tlog: nothing decoded
+        assert f"{log}: nothing could be read as MAVLink ({len(content)} bytes" in err
+    else:  # content that is no log format at all is refused before replaying (docs/logs.md)
+        assert f"{log}: not a log this reads (first bytes " in err
+    assert "Traceback" not in err
 
 
 def test_unwritable_outputs_are_refused_before_anything_runs(
