@@ -31,8 +31,9 @@ def test_a_silent_vehicle_is_asked_for_its_streams(free_udp_port: Callable[[], i
         ) as (_, out),
     ):
         pass
-    # the configured four (ATTITUDE, HIGHRES_IMU, LOCAL_POSITION_NED, SIM_STATE), once
-    assert out[0].commands_received == 4
+    # the configured six (ATTITUDE, HIGHRES_IMU, LOCAL_POSITION_NED, SIM_STATE, and what the
+    # autopilot's velocity rests on: EKF_STATUS_REPORT, GPS_RAW_INT), once
+    assert out[0].commands_received == 6
     sent = out[0].messages_sent
     # asked after the 2 s window (+ the 1 s check period): >= 2 s of 250 Hz IMU follow
     assert sent["highres_imu"] > 500 and sent["attitude"] > 200, sent
@@ -98,6 +99,10 @@ def test_rates_agree_with_mavsdk_and_its_own_setting_is_respected(
             tel.destroy()
             stop.set()
         counters: dict[str, Any] = live.service.summary().service_counters
-        assert counters.get("rate_requests_sent", 0) == 0  # the stream was never short
+        # ATTITUDE was never short, so never asked; the two streams glmav-sitl does not send
+        # (EKF_STATUS_REPORT, GPS_RAW_INT: the autopilot's aiding) were asked once each
+        rates = live.service.ingest.vehicles[1].rates
+        assert rates.asked("ATTITUDE") == 0 and rates.asked("HIGHRES_IMU") == 0
+        assert counters.get("rate_requests_sent", 0) == 2
     finally:
         drone.destroy()
