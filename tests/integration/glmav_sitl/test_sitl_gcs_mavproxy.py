@@ -113,7 +113,8 @@ def test_mavproxy_reads_sets_params_arms_takes_off_and_lands(
     sitl_toml = tmp_path / "sitl.toml"
     text = data_path("sitl.toml").read_text(encoding="utf-8")
     for name, hz in GCS_LINK_RATES_HZ.items():
-        text, n = re.subn(rf"(?m)^{name} = [0-9.]+", f"{name} = {hz}", text)
+        # the first occurrence: [rates_hz] (the autopilot profile has its own rates below)
+        text, n = re.subn(rf"(?m)^{name} = [0-9.]+", f"{name} = {hz}", text, count=1)
         assert n == 1, name
     sitl_toml.write_text(text, encoding="utf-8")
     sitl = subprocess.Popen(
