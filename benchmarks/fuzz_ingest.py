@@ -47,7 +47,7 @@ from support.fuzzgen import (  # noqa: E402
 )
 from support.ingest_harness import Harness, velocity_series  # noqa: E402
 
-REAL_TLOGS = ROOT.parent / "shared" / "data" / "real-tlogs"
+REAL_TLOGS = ROOT / "tests" / "data" / "real-tlogs"
 CASES_PER_FRAME = 3
 #: valid frames before the damage starts: the vehicle is admitted first. Without this, a
 #: storm of new system ids can fill the vehicle cap before the vehicle's first sample

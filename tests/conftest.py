@@ -1,4 +1,4 @@
-"""Shared test fixtures: loopback ports and the path to ../shared."""
+"""Shared test fixtures: loopback ports and the logs in tests/data."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED = REPO_ROOT.parent / "shared"
 
 
 def _free_port(kind: int) -> int:
@@ -31,13 +30,19 @@ def free_tcp_port() -> Callable[[], int]:
     return lambda: _free_port(socket.SOCK_STREAM)
 
 
+REAL_TLOGS = REPO_ROOT / "tests" / "data" / "real-tlogs"
+
+
 @pytest.fixture(scope="session")
-def real_tlogs() -> Path:
-    """``../shared/data/real-tlogs`` (ArduSub logs recorded by others)."""
-    path = SHARED / "data" / "real-tlogs"
-    if not path.is_dir():
-        raise FileNotFoundError(f"{path} missing: CI must place ../shared beside the repo")
-    return path
+def real_tlogs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Real ArduSub logs recorded by others (tests/data/real-tlogs, xz-compressed whole:
+    the tests count every frame), unpacked once per session."""
+    import lzma
+
+    out = tmp_path_factory.mktemp("real-tlogs")
+    for xz in sorted(REAL_TLOGS.glob("*.tlog.xz")):
+        (out / xz.name.removesuffix(".xz")).write_bytes(lzma.decompress(xz.read_bytes()))
+    return out
 
 
 PUBLIC_LOGS = REPO_ROOT / "tests" / "data" / "public-logs"

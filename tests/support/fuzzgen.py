@@ -3,7 +3,7 @@
 A *case* is one datagram of bytes with the *kind* of damage it carries. The valid stream
 comes from the simulator (a real MAVLink 2 stream, captured in memory); the damaged
 cases are built from it, from random bytes and from the real corrupt ArduSub log in
-``../shared/data/real-tlogs/``. Everything is seeded (``random.Random``): a run is
+``tests/data/real-tlogs/``. Everything is seeded (``random.Random``): a run is
 reproducible from its seed.
 
 Kinds (the issue's list):
@@ -338,7 +338,13 @@ class CaseMaker:
 
 
 def load_corrupt_log(real_tlogs: Path) -> bytes:
-    return (real_tlogs / "ardusub_2023-04-18.tlog").read_bytes()
+    """The real corrupt ArduSub log, from a folder holding it plain or xz-compressed."""
+    import lzma
+
+    plain = real_tlogs / "ardusub_2023-04-18.tlog"
+    if plain.exists():
+        return plain.read_bytes()
+    return lzma.decompress((real_tlogs / "ardusub_2023-04-18.tlog.xz").read_bytes())
 
 
 def epoch_pair() -> bytes:

@@ -1,4 +1,4 @@
-"""Real ArduSub logs recorded by others (../shared/data/real-tlogs): replay without a crash,
+"""Real ArduSub logs recorded by others (tests/data/real-tlogs): replay without a crash,
 every rejected frame counted, estimates consistent with the vehicle's own velocity."""
 
 from __future__ import annotations
