@@ -191,6 +191,11 @@ class Reference:
     def bias_body_mps2(self) -> tuple[float, float, float]:
         return (self.theta[3], self.theta[4], self.theta[5])
 
+    def observed(self, k: int) -> float:
+        """θ̂_k if the data observed it (|θ̂_k| > 2σ_k), else 0 (the prior's mean)."""
+        th = self.theta[k]
+        return th if th * th > 4.0 * max(float(self.cov[k, k]), 0.0) else 0.0
+
     def shifted(self, axis: int, dv_mps: float) -> Reference:
         th = list(self.theta)
         th[axis] += dv_mps

@@ -206,6 +206,8 @@ class VehicleEstimator:
         self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
         self._n_accel_changes = 0
         self._n_meas = 0
+        self._bias_ref: Reference | None = None
+        self._bias_obs: Vec3 = (0.0, 0.0, 0.0)
         self._gamma_saved: float | None = None
         self._t_gamma_restore_s = math.inf
         self.t_bank_s: float | None = None
@@ -316,7 +318,9 @@ class VehicleEstimator:
             ]
         f = self._f
         mask = self._mask()
-        self.bank.step(dt, self._euler, self._omega(), f, y, mask)
+        b_obs = self._bank_bias()
+        f_bank = f if b_obs is None else (f[0] - b_obs[0], f[1] - b_obs[1], f[2] - b_obs[2])
+        self.bank.step(dt, self._euler, self._omega(), f_bank, y, mask)
         E = self.bank.e_last.ravel().tolist()
         self._E = E
         a = _e_times(E, f)  # earth-frame acceleration E Γ = E f + g e_d (V̇ = E Γ)
@@ -438,9 +442,11 @@ class VehicleEstimator:
 
     def _aiding_sample(self, s: AidingSample) -> None:
         """The autopilot's word on what its velocity rests on. Its estimator's own report
-        (EKF_STATUS_REPORT) is the authority when it sends one: it knows what it fuses (an
-        ArduSub vehicle has no GPS fix and an aided velocity from other sensors). Without
-        one, GPS_RAW_INT's fix type decides the horizontal axes."""
+        (EKF_STATUS_REPORT) is the authority when it sends one: it knows what it fuses. An
+        ArduSub ROV loses its GPS fix at every dive while its velocity stays aided by
+        other sensors; ArduPilot's flags drop horizontal aiding ~7 s after a GPS loss,
+        while the EKF still dead-reckons well. Without that report, GPS_RAW_INT's fix type
+        decides the horizontal axes."""
         self._aiding[s.source] = (s.horizontal_aided, s.vertical_aided)
         if self.t_bank_s is None:
             return
@@ -609,24 +615,33 @@ class VehicleEstimator:
         out[j] += self._lost_axis_correction(j)
         return (out[0], out[1], out[2])
 
+    def _bank_bias(self) -> Vec3 | None:
+        """The accelerometer bias fed to the bank: the fit's *observed* components
+        (|θ̂_k| > 2σ_k; the fit bounds ‖b̂‖), from the reference frozen at the hand-over while
+        an axis is isolated; None without a fit or with ``compensate_accel_bias`` off."""
+        if not self.cfg.compensate_accel_bias:
+            return None
+        ref = self._ref_handover if self.fdi.faulty_axes() else self.fdi.fit.ref
+        if ref is None:
+            return None
+        if ref is not self._bias_ref:
+            self._bias_ref = ref
+            self._bias_obs = (ref.observed(3), ref.observed(4), ref.observed(5))
+        return self._bias_obs
+
     def _lost_axis_correction(self, j: int) -> float:
-        """The fit's bias and heading correction of the dead-reckoned axis j since the
-        hand-over (module docstring); only observed components (|θ̂_k| > 2σ_k) count."""
+        """The fit's heading correction of the dead-reckoned axis j since the hand-over
+        (module docstring); only an observed heading error (|δψ̂| > 2σ) counts. (The bias
+        is in the bank already: :meth:`_bank_bias`.)"""
         ref = self._ref_handover
         h = self._ints_handover
         if ref is None or h is None:
             return 0.0
-        theta = ref.theta
-        sd = np.sqrt(np.clip(np.diag(ref.cov), 0.0, None))
-        b_int, c_int = self._ints()
-        k = 3 * j
-        corr = 0.0
-        for m in range(3):
-            if abs(theta[3 + m]) > 2.0 * sd[3 + m]:
-                corr -= (b_int[k + m] - h[0][k + m]) * theta[3 + m]
-        if abs(theta[6]) > 2.0 * sd[6]:
-            corr += (c_int[j] - h[1][j]) * theta[6]
-        return corr
+        dpsi = ref.observed(6)
+        if dpsi == 0.0:
+            return 0.0
+        _, c_int = self._ints()
+        return (c_int[j] - h[1][j]) * dpsi
 
     def _health(self, t: float, out: list[Record]) -> None:
         if self._next_health_s is None or t < self._next_health_s:

@@ -86,13 +86,14 @@ def test_autopilot_side_fault_keeps_the_estimate_within_twice_its_baseline(name:
 
 def test_gps_loss_is_taken_from_the_autopilot() -> None:
     """ArduPilot's EKF flags say its horizontal velocity is not aided while GPS is off: n and
-    e are isolated as ``unaided`` within a second of the loss and re-admitted after it."""
+    e are isolated as ``unaided`` when the flags say so and re-admitted after it."""
     r = _replay("b_quad_gps_off")
     (t_off, t_back) = _windows("b_quad_gps_off")[0]
     unaided = [i for i in r.isolations if i.kind == "unaided"]
     assert sorted(i.axis for i in unaided) == ["e", "n"]
-    # the EKF reports at 5 Hz and its flags follow the GPS timeout (ArduPilot: ~0.5 s)
-    assert all(t_off <= i.t_s <= t_off + 1.0 for i in unaided), unaided
+    # ArduPilot's flags drop horizontal aiding when its EKF stops trusting its dead
+    # reckoning: measured 7.2 s after the GPS went (EKF_STATUS_REPORT at 5 Hz); bound 10 s
+    assert all(t_off <= i.t_s <= t_off + 10.0 for i in unaided), unaided
     assert r.switches[-1].to_config == "full"
     assert t_back <= r.switches[-1].t_s <= t_back + 10.0  # the EKF re-aids after its checks
 
