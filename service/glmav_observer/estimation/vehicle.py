@@ -17,11 +17,11 @@ equations.md), which removes that lag (docs/observer.md measures both).
 
 Accelerometer bias and heading error. The FDI fits the body-frame accelerometer bias b̂
 and the attitude's heading error δψ̂ from vetted samples
-(:mod:`glmav_observer.estimation.fdi`). They never enter the bank: ``full`` and the
-paper's configurations run on the IMU as it is, so a bad fit cannot poison them. With
-``compensate_accel_bias`` the *active* estimate's dead-reckoned axis gets the fit's
-correction since the hand-over, −(B_j(t) − B_j(t_h)) b̂ + (C_j(t) − C_j(t_h)) δψ̂, using
-only the components the fit has observed (|θ̂_k| > 2σ_k) and a bounded b̂.
+(:mod:`glmav_observer.estimation.fdi`). With ``compensate_accel_bias`` the bank is fed
+f − b̂_obs, b̂_obs the components the fit has *observed* (|b̂_k| > 2σ_k; an unexcited one
+stays at the prior's 0; ‖b̂‖ ≤ 2 m/s²), frozen at the hand-over while an axis is isolated:
+a poorly observed fit cannot poison ``full``. The *active* estimate's dead-reckoned axis
+also gets the observed heading term (C_j(t) − C_j(t_h)) δψ̂ since the hand-over.
 
 IMU shocks. A single specific-force sample far from its neighbours (a shock, a corrupt
 frame within the plausible range) is held out for one sample (:mod:`despike`); a real
