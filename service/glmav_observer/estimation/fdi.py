@@ -646,9 +646,8 @@ class AxisMonitor:
         ratio: float,
     ) -> AxisVerdict:
         """Isolated: healthy again for ``recovery_s`` (against the dead reckoning) -> OK."""
-        cfg = self.cfg
         if self.fault is not None and self.fault.kind == FaultKind.UNAIDED.value:
-            return AxisVerdict(False, r, ratio, self.state)  # the autopilot decides (clear_unaided)
+            return AxisVerdict(False, r, ratio, self.state)  # the autopilot decides (set_unaided)
         slack = self.bias_threshold_mps() + 3.0 * self.sigma_dead_reckoning_mps(t_s)
         if self.fault is not None and self.fault.kind == FaultKind.BIAS.value:
             return self._bias_recovery(t_s, r=r, repeated=repeated, ratio=ratio)
@@ -665,17 +664,7 @@ class AxisMonitor:
             and (noise_ratio <= 1.0 or math.isinf(slack))
             and not (bias_ratio * self.bias_threshold_mps() > slack)
         )
-        if not healthy:
-            self._healthy_since_s = None
-            self.state = AxisState.FAULTY
-            return AxisVerdict(False, r, ratio, self.state)
-        if self._healthy_since_s is None:
-            self._healthy_since_s = t_s
-        self.state = AxisState.RECOVERING
-        if t_s - self._healthy_since_s >= cfg.recovery_s:
-            self._readmit()
-            return AxisVerdict(True, r, ratio, self.state)
-        return AxisVerdict(False, r, ratio, self.state)
+        return self._recovery_verdict(t_s, healthy, r, ratio)
 
     def _bias_recovery(self, t_s: float, *, r: float, repeated: bool, ratio: float) -> AxisVerdict:
         """A bias fault ends when the measurement steps back by about the fault's size
@@ -706,6 +695,11 @@ class AxisMonitor:
                     self._stepped_back_level = None  # moved again: wait for a new step
             else:
                 healthy = abs(now) <= max(cfg.bias_threshold_mps, 0.5 * abs(beta))
+        return self._recovery_verdict(t_s, healthy, r, ratio)
+
+    def _recovery_verdict(self, t_s: float, healthy: bool, r: float, ratio: float) -> AxisVerdict:
+        """Isolated: a sample that passes the recovery test extends the healthy run; after
+        ``recovery_s`` of them the axis is re-admitted. One that fails resets the run."""
         if not healthy:
             self._healthy_since_s = None
             self.state = AxisState.FAULTY
@@ -713,7 +707,7 @@ class AxisMonitor:
         if self._healthy_since_s is None:
             self._healthy_since_s = t_s
         self.state = AxisState.RECOVERING
-        if t_s - self._healthy_since_s >= cfg.recovery_s:
+        if t_s - self._healthy_since_s >= self.cfg.recovery_s:
             self._readmit()
             return AxisVerdict(True, r, ratio, self.state)
         return AxisVerdict(False, r, ratio, self.state)
@@ -830,51 +824,47 @@ class FaultDetector:
         if len(wants) >= 2 or others:
             # two velocity sensors failing at once is far less likely than one IMU or
             # attitude error seen on every axis: blame the IMU, withdraw the isolations
-            sig = (self.axes[0].sigma_r_mps, self.axes[1].sigma_r_mps, self.axes[2].sigma_r_mps)
-            _, db, t_c = classify_change(j0, list(self._recent), sig)
-            self._rebase(t_s, t_s if math.isnan(t_c) else t_c, db, self.axes[j0].axis)
-            return tuple(  # type: ignore[return-value]
-                AxisVerdict(False, x.residual_mps, x.test_ratio, self.axes[i].state)
-                for i, x in enumerate(out)
-            )
+            _, db, t_c = classify_change(j0, list(self._recent), self._sigmas())
+            return self._rebase(t_s, t_s if math.isnan(t_c) else t_c, db, self.axes[j0].axis, v)
         if k0 is FaultKind.BIAS and self.fit.ref is not None and not self.fit.frozen_bias:
-            sig = (
-                self.axes[0].sigma_r_mps,
-                self.axes[1].sigma_r_mps,
-                self.axes[2].sigma_r_mps,
-            )
-            kind, db, t_c = classify_change(j0, list(self._recent), sig)
+            kind, db, t_c = classify_change(j0, list(self._recent), self._sigmas())
             if kind == "undecided":
                 return v  # the tests fail again on the next sample, with more history
             if kind == "offset":
                 self.reference_drifts += 1
-                self._rebase(t_s, t_c, None, self.axes[j0].axis)
-                return tuple(  # type: ignore[return-value]
-                    AxisVerdict(False, x.residual_mps, x.test_ratio, self.axes[i].state)
-                    for i, x in enumerate(out)
-                )
+                return self._rebase(t_s, t_c, None, self.axes[j0].axis, v)
             if kind == "accel":
-                self._rebase(t_s, t_c, db, self.axes[j0].axis)
-                return tuple(  # type: ignore[return-value]
-                    AxisVerdict(False, x.residual_mps, x.test_ratio, self.axes[i].state)
-                    for i, x in enumerate(out)
-                )
+                return self._rebase(t_s, t_c, db, self.axes[j0].axis, v)
         for j, kind_j in wants:
             self.axes[j].isolate(t_s, kind_j)
             out[j] = AxisVerdict(False, v[j].residual_mps, v[j].test_ratio, self.axes[j].state)
         return (out[0], out[1], out[2])
 
+    def _sigmas(self) -> tuple[float, float, float]:
+        return (self.axes[0].sigma_r_mps, self.axes[1].sigma_r_mps, self.axes[2].sigma_r_mps)
+
     def _rebase(
-        self, t_s: float, t_c: float, db: tuple[float, float, float] | None, by: AxisName
-    ) -> None:
-        """An accelerometer change (``db``) or a reference drift (None) at t_c: the
-        reference restarts from the samples after it."""
+        self,
+        t_s: float,
+        t_c: float,
+        db: tuple[float, float, float] | None,
+        by: AxisName,
+        v: tuple[AxisVerdict, AxisVerdict, AxisVerdict],
+    ) -> tuple[AxisVerdict, AxisVerdict, AxisVerdict]:
+        """An accelerometer change (``db``) or a reference offset (None) at t_c: the
+        reference restarts from the samples after it; no sample of this measurement is
+        used (the verdicts ``v`` are returned with ``use`` off)."""
         if db is not None:
             self.accel_changes.append(AccelChange(t_s, t_c, db, by))
         self.fit.drop_before(math.inf)
         for ax in self.axes:
             ax.rebase()
         self._recent.clear()
+        a, b, c = (
+            AxisVerdict(False, x.residual_mps, x.test_ratio, ax.state)
+            for x, ax in zip(v, self.axes, strict=True)
+        )
+        return (a, b, c)
 
     def set_unaided(self, t_s: float, horizontal: bool | None, vertical: bool | None) -> None:
         """Apply the autopilot's word on what its velocity rests on (None: no word)."""
