@@ -137,6 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenario = None if args.scenario is None else load_scenario(args.scenario)
         if scenario is not None and args.sensor_profile is not None:
             scenario = dataclasses.replace(scenario, sensor_profile=args.sensor_profile)
+        profile = args.sensor_profile  # also for a ground-station flight (no scenario)
         sitl = load_sitl_config(args.config)
         params = load_vehicle_params(args.vehicle)
     except ConfigError as e:
@@ -154,7 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _on_signal)
     log.info(
         "flying %s -> %s",
-        "for a ground station"
+        f"for a ground station, {profile or 'ideal'} sensors"
         if scenario is None
         else f"{scenario.name} ({scenario.source}), {scenario.sensor_profile} sensors",
         ", ".join(args.link) or "no link",
@@ -173,6 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sitl=sitl,
             dt_s=args.dt,
             signing_key=key,
+            sensor_profile=profile,
         )
     except LinkError as e:
         print(f"glmav-sitl: link error: {e}", file=sys.stderr)

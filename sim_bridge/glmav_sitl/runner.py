@@ -96,6 +96,7 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
     truth_every_s: float = 0.004,
     signing_key: bytes | None = None,
     started: threading.Event | None = None,
+    sensor_profile: str | None = None,
 ) -> RunSummary:
     """Fly ``scenario`` for ``duration_s`` (default: the scenario's), streaming MAVLink.
 
@@ -106,12 +107,15 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
     ``speed``: ``"realtime"``, ``"max"`` (as fast as possible) or a factor. Links are
     connection strings (``udpout:127.0.0.1:14550``) or already-open :class:`Link`\\ s
     (closed here only if opened here). ``started`` is set once the links are open.
+    ``sensor_profile`` overrides the scenario's (also for a ground-station flight).
     """
     gcs_flight = scenario is None
     if scenario is None:
         sc = ground_scenario()
     else:
         sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    if sensor_profile is not None:
+        sc = replace(sc, sensor_profile=sensor_profile)
     sitl = sitl or load_sitl_config()
     params = params or load_vehicle_params()
     factor = parse_speed(speed)

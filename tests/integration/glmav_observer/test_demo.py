@@ -105,3 +105,42 @@ def test_a_failed_demo_keeps_the_previous_recording(tmp_path: Path) -> None:
     assert "simulator failed" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert rrd.read_bytes() == b"a good recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.rrd"]  # no partial left
+
+
+@pytest.mark.timeout(150)
+def test_demo_on_the_autopilot_sensor_profile(tmp_path: Path) -> None:
+    """The same demo on the simulator's `autopilot` sensors (issue 12): 50 Hz point-sampled
+    vibrating RAW_IMU, ATTITUDE from an attitude estimator, LOCAL_POSITION_NED from a 10 Hz
+    GPS through a filter, 150 ms late. Bounds from that profile, each with its reason."""
+    out = _run_demo(
+        tmp_path, "--fault-axis", "e", "--fault-kind", "bias", "--sensor-profile", "autopilot"
+    )
+    m = re.search(r"(\d+) messages, (\d+) rejected", out)
+    assert m is not None, out
+    # 22 s at 50 + 50 + 10 Hz (+ telemetry) is about 5,000 messages; ideal sends 4x more
+    assert 4000 < int(m.group(1)) < 9000 and int(m.group(2)) == 0, out
+    row = re.search(r"^active\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.MULTILINE)
+    assert row is not None, out
+    # the input lags truth by 150 ms in a 3 m/s, 0.3 rad/s turn (0.9 m/s²): ~0.13 m/s
+    # of its own; the active estimate must stay under 0.2 m/s per axis
+    assert max(float(x) for x in row.groups()) <= 0.2, out
+    iso = re.search(r"fault isolated: axis (\w) \((\w+)\) at t = ([\d.]+) s, ([\d.]+) s after", out)
+    assert iso is not None and (iso.group(1), iso.group(2)) == ("e", "bias"), out
+    # the first biased sample is up to 0.1 s (10 Hz) + 0.15 s (lag) late, and the bias
+    # test needs 3 failing samples (0.2 s more at 10 Hz): bound 0.75 s
+    assert 0.0 <= float(iso.group(4)) <= 0.75, out
+    switches = re.findall(r"switch: (\w+) -> (\w+) at t = ([\d.]+) s \((\w+)\), jump ([\d.]+)", out)
+    assert ("full", "c3", iso.group(3)) in [(a, b, t) for a, b, t, *_ in switches], out
+    # The GPS's 150 ms lag during the take-off's vertical acceleration can read as a bias
+    # on d (the live service does not model the lag yet: docs/observer.md). Such a wrong
+    # call must cost little and briefly: every hand-over before the fault is taken back
+    # within 2 s, and no jump exceeds 0.1 m/s (a 10 Hz measurement moves `full` in steps
+    # of 0.1 s of the vehicle's acceleration, up to 0.9 m/s² in the turn).
+    t_fault = 10.0
+    pairs = list(zip(switches[::2], switches[1::2], strict=False))
+    for (_, to, t0, *_), (frm, back, t1, *_) in pairs:
+        assert (frm, back) == (to, "full"), out
+        if float(t0) < t_fault:
+            assert float(t1) - float(t0) <= 2.0, out
+    assert all(float(j) <= 0.1 for *_, j in switches), out
+    assert "active configuration at the end: full" in out
