@@ -134,13 +134,15 @@ def test_demo_on_the_autopilot_sensor_profile(tmp_path: Path) -> None:
     # The GPS's 150 ms lag during the take-off's vertical acceleration can read as a bias
     # on d (the live service does not model the lag yet: docs/observer.md). Such a wrong
     # call must cost little and briefly: every hand-over before the fault is taken back
-    # within 2 s, and no jump exceeds 0.1 m/s (a 10 Hz measurement moves `full` in steps
-    # of 0.1 s of the vehicle's acceleration, up to 0.9 m/s² in the turn).
+    # within 2 s. Jumps: a 10 Hz measurement moves `full` in steps of 0.1 s of the vehicle's
+    # acceleration (up to 0.9 m/s² in the turn: 0.09 m/s), and a switch back adds the first
+    # 20 ms of the dead reckoning's correction at γ = 4 (8 % of up to 0.6 m/s of drift):
+    # bound 0.15 m/s (measured 0.036-0.101 over 5 runs).
     t_fault = 10.0
     pairs = list(zip(switches[::2], switches[1::2], strict=False))
     for (_, to, t0, *_), (frm, back, t1, *_) in pairs:
         assert (frm, back) == (to, "full"), out
         if float(t0) < t_fault:
             assert float(t1) - float(t0) <= 2.0, out
-    assert all(float(j) <= 0.1 for *_, j in switches), out
+    assert all(float(j) <= 0.15 for *_, j in switches), out
     assert "active configuration at the end: full" in out
