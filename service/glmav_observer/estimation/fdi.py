@@ -618,9 +618,9 @@ class AxisMonitor:
     def isolate(self, t_s: float, kind: FaultKind) -> None:
         self.state = AxisState.FAULTY
         self.fault = FaultEvent(self.axis, kind.value, t_s, None)
-        self._frozen = self.fit.ref if self.armed() and self.fit.ref is not None else None
-        if self._frozen is None and self.fit.ref is not None and self._frozen_ok():
-            self._frozen = self.fit.ref
+        # dead reckoning from the fit of this moment, if it predicts this axis
+        fitted = self.armed() or self.index in self.fit.fitted_axes
+        self._frozen = self.fit.ref if fitted else None
         self.fit.frozen_bias = True
         rb = list(self._resid)[-self.cfg.bias_samples :]
         self._fault_level_mps = statistics.median(rb) if rb else 0.0
@@ -631,9 +631,6 @@ class AxisMonitor:
         self._fail_run = 0
         self._healthy_since_s = None
         self._t_isolated_s = t_s
-
-    def _frozen_ok(self) -> bool:
-        return self.index in self.fit.fitted_axes
 
     def _recovery(
         self,

@@ -473,6 +473,8 @@ class VehicleEstimator:
         self._use = [False, False, False]
 
     def _after_fdi(self, t: float, faulty_before: set[int]) -> None:
+        if self.fdi.reference_drifts:  # re-anchorings on a reference offset (no event)
+            self.counters["fdi_reference_offsets"] = self.fdi.reference_drifts
         changes = self.fdi.accel_changes
         while self._n_accel_changes < len(changes):
             ch = changes[self._n_accel_changes]
