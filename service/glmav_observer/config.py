@@ -233,6 +233,8 @@ _BOUNDS: dict[str, Check] = {
     "freeze_repeat_rate": _within(0.0, 1.0),
     "prior_bias_mps2": _within(0.0, 100.0, lo_open=True),
     "prior_yaw_rad": _within(0.0, 3.2, lo_open=True),
+    "prior_lag_s": _within(0.0, 2.0, lo_open=True),
+    "max_lag_s": _within(0.0, 5.0),
     "correlation_samples": _within(1.0, 1000.0),
     "max_bias_mps2": _within(0.0, 100.0, lo_open=True),
     "change_window_s": _within(0.0, 600.0, lo_open=True),

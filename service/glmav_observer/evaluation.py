@@ -27,6 +27,7 @@ from glmav_observer.records import (
     NED_AXES,
     MeasurementRecord,
     Record,
+    ReferenceFitSummary,
     TruthRecord,
     VelocityRecord,
 )
@@ -233,6 +234,8 @@ class LogResult:
     counters: dict[str, int]
     collector: RecordCollector
     skip_s: float
+    #: what the FDI's reference fit had learnt at the end of the log (None: never fitted)
+    reference_fit: ReferenceFitSummary | None = None
 
     def errors(self, config: str) -> tuple[FloatArray, FloatArray]:
         return self.collector.errors(config, self.skip_s)
@@ -290,6 +293,7 @@ def replay(
         counters=dict(est.counters),
         collector=collector,
         skip_s=skip,
+        reference_fit=est.reference_fit_summary(),
     )
     for c in collector.series:
         result.rmse_ned_mps[c] = rmse(result.errors(c)[1])

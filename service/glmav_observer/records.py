@@ -105,6 +105,30 @@ class FaultEvent:
 
 
 @dataclass(frozen=True, slots=True)
+class ReferenceFitSummary:
+    """What the FDI's reference fit has learnt of the vehicle's sensors (docs/observer.md,
+    "The reference"): the body-frame (FRD) accelerometer bias, the attitude's heading error
+    and the velocity measurement's lag. Each is the fit's mean; ``*_sigma`` its 1σ."""
+
+    accel_bias_body_mps2: Vec3
+    accel_bias_sigma_mps2: Vec3
+    heading_error_rad: float
+    heading_error_sigma_rad: float
+    measurement_lag_s: float
+    measurement_lag_sigma_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "accel_bias_body_mps2": _vec(self.accel_bias_body_mps2),
+            "accel_bias_sigma_mps2": _vec(self.accel_bias_sigma_mps2),
+            "heading_error_rad": self.heading_error_rad,
+            "heading_error_sigma_rad": self.heading_error_sigma_rad,
+            "measurement_lag_s": self.measurement_lag_s,
+            "measurement_lag_sigma_s": self.measurement_lag_sigma_s,
+        }
+
+
+@dataclass(frozen=True, slots=True)
 class HealthRecord:
     """Per-vehicle health (key ``glmav/<sysid>/health``, 10 Hz).
 
@@ -113,7 +137,8 @@ class HealthRecord:
     thresholds (> 1 means the axis fails its test); ``axis_state`` maps each NED axis
     to ``"ok"``, ``"suspect"``, ``"faulty"`` or ``"recovering"``; ``isolated_faults``
     the axes isolated now, plus any ``accel_bias`` event of the last 5 s (axis ``"body"``:
-    it isolates nothing); ``input_rates_hz`` the measured stream rates by message name.
+    it isolates nothing); ``input_rates_hz`` the measured stream rates by message name;
+    ``reference_fit`` what the FDI's reference has learnt (null before its first fit).
     """
 
     sysid: int
@@ -126,6 +151,7 @@ class HealthRecord:
     isolated_faults: tuple[FaultEvent, ...]
     input_rates_hz: dict[str, float]
     counters: dict[str, int]
+    reference_fit: ReferenceFitSummary | None = None
     schema: str = field(default=HEALTH_SCHEMA)
 
     def to_dict(self) -> dict[str, Any]:
@@ -141,6 +167,7 @@ class HealthRecord:
             "isolated_faults": [f.to_dict() for f in self.isolated_faults],
             "input_rates_hz": dict(self.input_rates_hz),
             "counters": dict(self.counters),
+            "reference_fit": None if self.reference_fit is None else self.reference_fit.to_dict(),
         }
 
 

@@ -12,13 +12,19 @@ careful analysis adds"; Γ = f + g_body, (9)). A real autopilot's IMU and attitu
 exact: the accelerometer reads f + b (b a body-frame bias), and its heading carries an error
 δψ, which rotates the earth-frame acceleration about the down axis. To first order,
 
-    z_j(τ) = y_j(τ) − A_j(τ) = V0_j − B_j(τ) b + δψ C_j(τ) + n_j(τ)
+    z_j(τ) = y_j(τ) − A_j(τ) = V0_j − B_j(τ) b + δψ C_j(τ) − d L_j(τ) + n_j(τ)
 
 with the integrals A(t) = ∫ (E f + g e_d) dt, B(t) = ∫ E dt (3×3) and C(t) = ∫ (−a_e, a_n,
-0) dt kept by the vehicle (a = E f + g e_d). θ = (V0 (3), b (3), δψ) is fitted by Bayesian
+0) dt kept by the vehicle (a = E f + g e_d). The last term is the measurement's lag d: a
+velocity that arrives d late reads y(τ) = v(τ − d) ≈ v(τ) − d a(τ) (our ``autopilot``
+profile's filtered GPS: 150 ms); L(τ) is the IMU's mean earth acceleration over the last
+``LAG_WINDOW_S`` (an integral difference: no vibration noise). Unmodelled, a lag reads as a
+step at every strong acceleration (a gun launch: 13 m/s² × 0.15 s = 2 m/s). θ = (V0 (3),
+b (3), δψ, d) is fitted by Bayesian
 linear regression over the *vetted* samples of the last ``bias_window_s`` (samples at
 least ``vet_delay_s`` old that passed every test), with zero-mean priors σ_b =
-``prior_bias_mps2`` and σ_ψ = ``prior_yaw_rad`` (V0 is free). The priors keep the fit
+``prior_bias_mps2``, σ_ψ = ``prior_yaw_rad`` and σ_d = ``prior_lag_s`` (V0 is free; d is
+bounded to [0, ``max_lag_s``]). The priors keep the fit
 bounded when the flight does not excite b or δψ (hover, straight flight), and the
 posterior covariance P gives the prediction's own uncertainty: extrapolating an
 unobserved heading error into a sudden acceleration is uncertain, and the tests say so.
@@ -76,14 +82,24 @@ MIN_PRE_SAMPLES = 5
 REARM_ROWS = 20
 #: Median of the χ² distribution with one degree of freedom.
 CHI2_1_MEDIAN = 0.45494
-#: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1).
-N_THETA = 7
+#: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1),
+#: measurement lag (1).
+N_THETA = 8
+#: Index of the lag (s) in θ.
+LAG = 7
+#: Window (s) of the lag regressor L: the IMU's mean earth acceleration over it.
+LAG_WINDOW_S = 0.1
+#: The lag is a property of the link, learnt over many windows: the memory's time
+#: constant (s), and the smallest σ of the prior it gives later fits (a lag can change).
+LAG_MEMORY_S = 120.0
+LAG_SIGMA_MIN_S = 0.02
 #: Precision of the (free) V0 prior, 1/(m/s)²: 1/(100 m/s)².
 _V0_PRECISION = 1e-4
 
 FloatArray = np.ndarray[Any, np.dtype[np.float64]]
-#: One row's regressors: B(τ) flattened (9) and C(τ) (3).
-Integrals = tuple[tuple[float, ...], tuple[float, float, float]]
+#: One row's regressors: B(τ) flattened (9), C(τ) (3) and the earth-frame acceleration
+#: L(τ) (3, the IMU's mean over the last ``LAG_WINDOW_S``).
+Integrals = tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float]]
 
 
 class AxisState(Enum):
@@ -142,6 +158,10 @@ class FdiConfig:
     min_imu_rate_hz: float = 5.0
     prior_bias_mps2: float = 0.3
     prior_yaw_rad: float = 0.1
+    #: σ of the measurement-lag prior (zero mean): a GPS velocity is 0.1-0.2 s late
+    #: unless the autopilot compensates it (ArduPilot's and PX4's EKFs do)
+    prior_lag_s: float = 0.1
+    max_lag_s: float = 0.5
     #: rows of one axis per independent sample: an autopilot's velocity is filtered, its
     #: errors correlated over a few samples (P is inflated by this factor)
     correlation_samples: float = 5.0
@@ -163,13 +183,13 @@ class AxisVerdict:
 class Reference:
     """A fitted reference: θ̂, its covariance and the integrals it is anchored at."""
 
-    theta: tuple[float, ...]  # V0 n, e, d; b x, y, z; δψ
-    cov: FloatArray  # (7, 7)
+    theta: tuple[float, ...]  # V0 n, e, d; b x, y, z; δψ; lag d (s)
+    cov: FloatArray  # (8, 8)
     b_anchor: tuple[float, ...]  # B at the first row (9)
     c_anchor: tuple[float, float, float]  # C at the first row
 
     def regressors(self, axis: int, ints: Integrals) -> list[float]:
-        b_int, c_int = ints
+        b_int, c_int, l_now = ints
         k = 3 * axis
         x = [0.0] * N_THETA
         x[axis] = 1.0
@@ -177,11 +197,17 @@ class Reference:
         x[4] = -(b_int[k + 1] - self.b_anchor[k + 1])
         x[5] = -(b_int[k + 2] - self.b_anchor[k + 2])
         x[6] = c_int[axis] - self.c_anchor[axis]
+        x[LAG] = -l_now[axis]
         return x
 
-    def predict(self, axis: int, a_int_j: float, ints: Integrals) -> tuple[float, float]:
-        """(ŷ_j, σ_pred,j) at integrals ``ints``."""
+    def predict(
+        self, axis: int, a_int_j: float, ints: Integrals, *, lagged: bool = True
+    ) -> tuple[float, float]:
+        """(ŷ_j, σ_pred,j) at integrals ``ints``: the measurement (``lagged``) or the
+        velocity itself (the lag term left out)."""
         x = self.regressors(axis, ints)
+        if not lagged:
+            x[LAG] = 0.0
         mean = a_int_j + sum(xi * ti for xi, ti in zip(x, self.theta, strict=True))
         xv = np.asarray(x)
         var = float(xv @ self.cov @ xv)
@@ -196,6 +222,15 @@ class Reference:
         th = self.theta[k]
         return th if th * th > 4.0 * max(float(self.cov[k, k]), 0.0) else 0.0
 
+    def held(self) -> Reference:
+        """This reference to hold through an isolation (its b and δψ are held as they are):
+        the lag only if observed, else 0. A held parameter loses its covariance, and an
+        unobserved lag from a quiet window (0.03 s, say) held into a 5 m/s² acceleration
+        is a 0.15 m/s residual on a healthy axis."""
+        th = list(self.theta)
+        th[LAG] = self.observed(LAG)
+        return Reference(tuple(th), self.cov, self.b_anchor, self.c_anchor)
+
     def shifted(self, axis: int, dv_mps: float) -> Reference:
         th = list(self.theta)
         th[axis] += dv_mps
@@ -208,19 +243,31 @@ class ReferenceFit:
 
     cfg: FdiConfig
     #: rows (t, axis, z_j, B(t) flat 9, C(t) 3, σ_r of the axis): one per vetted sample
-    rows: deque[tuple[float, int, float, tuple[float, ...], tuple[float, float, float], float]] = (
-        field(default_factory=deque)
-    )
+    rows: deque[
+        tuple[
+            float,
+            int,
+            float,
+            tuple[float, ...],
+            tuple[float, float, float],
+            float,
+            tuple[float, float, float],
+        ]
+    ] = field(default_factory=deque)
     ref: Reference | None = None
     fitted: bool = False
     frozen_bias: bool = False
     imu_ok: bool = True
     _since_fit: int = 0
+    #: what earlier windows learnt of the lag: its mean (s) and precision (1/s²)
+    lag_memory_s: float = 0.0
+    lag_memory_info: float = 0.0
+    _t_lag_memory_s: float = -math.inf
     rows_per_axis: list[int] = field(default_factory=lambda: [0, 0, 0])
     fitted_axes: frozenset[int] = frozenset()
 
     def add(self, t_s: float, axis: int, z_mps: float, ints: Integrals, sigma_mps: float) -> None:
-        self.rows.append((t_s, axis, z_mps, ints[0], ints[1], sigma_mps))
+        self.rows.append((t_s, axis, z_mps, ints[0], ints[1], sigma_mps, ints[2]))
         self.rows_per_axis[axis] += 1
         self._since_fit += 1
 
@@ -236,8 +283,9 @@ class ReferenceFit:
         while rows and rows[0][0] < t_min:
             self.rows_per_axis[rows.popleft()[1]] -= 1
         if self._since_fit >= 15 or (not self.fitted and self._since_fit > 0):
+            new_rows = self._since_fit
             self._since_fit = 0
-            self._fit()
+            self._fit(new_rows)
 
     def span_s(self) -> float:
         return self.rows[-1][0] - self.rows[0][0] if self.rows else 0.0
@@ -246,7 +294,44 @@ class ReferenceFit:
     def bias_body_mps2(self) -> tuple[float, float, float]:
         return (0.0, 0.0, 0.0) if self.ref is None else self.ref.bias_body_mps2
 
-    def _fit(self) -> None:
+    def _lag_prior(self) -> tuple[float, float]:
+        """(mean, precision) of the lag's prior: the config's (zero mean, σ ``prior_lag_s``)
+        combined with what earlier windows learnt (``lag_memory``), at most 1/LAG_SIGMA_MIN²."""
+        base = 1.0 / self.cfg.prior_lag_s**2
+        info = min(base + self.lag_memory_info, 1.0 / LAG_SIGMA_MIN_S**2)
+        mean = self.lag_memory_info * self.lag_memory_s / (base + self.lag_memory_info)
+        return min(max(mean, 0.0), self.cfg.max_lag_s), info
+
+    def _remember_lag(
+        self,
+        theta_lag: float,
+        var_lag: float,
+        prior: tuple[float, float],
+        t_s: float,
+        fraction: float,
+    ) -> None:
+        """Fold this window's evidence on the lag into the memory. The window's likelihood
+        alone (its posterior minus the prior it started from) is weighted by the fraction
+        of its rows that are new (windows overlap: a row is in ~20 fits), and the memory
+        forgets with time constant LAG_MEMORY_S (a link's lag can change)."""
+        mean0, info0 = prior
+        info_like = 1.0 / max(var_lag, 1e-12) - info0
+        decay = math.exp(-max(t_s - self._t_lag_memory_s, 0.0) / LAG_MEMORY_S)
+        self._t_lag_memory_s = t_s
+        kept = self.lag_memory_info * decay
+        if info_like <= 1.0 / self.cfg.prior_lag_s**2:
+            # a window that knows less of the lag than the prior (a hover, a straight
+            # line): its estimate is noise, and clipped noise would bias the memory
+            self.lag_memory_info = kept
+            return
+        d_like = (theta_lag / var_lag - info0 * mean0) / info_like
+        d_like = min(max(d_like, -self.cfg.max_lag_s), 2.0 * self.cfg.max_lag_s)
+        add = fraction * info_like
+        total = kept + add
+        self.lag_memory_s = (kept * self.lag_memory_s + add * d_like) / total
+        self.lag_memory_info = total
+
+    def _fit(self, new_rows: int = 0) -> None:
         rows = self.rows
         if len(rows) < 12 or self.span_s() < 1.0:
             return
@@ -260,22 +345,28 @@ class ReferenceFit:
         w /= cfg.correlation_samples
         Bj = (np.array([r[3] for r in rows]) - np.asarray(b0)).reshape(n, 3, 3)[np.arange(n), axes]
         Cj = (np.array([r[4] for r in rows]) - np.asarray(c0))[np.arange(n), axes]
+        Lj = np.array([r[6] for r in rows])[np.arange(n), axes]
         X = np.zeros((n, N_THETA))
         X[np.arange(n), axes] = 1.0
         X[:, 3:6] = -Bj
         X[:, 6] = Cj
+        X[:, LAG] = -Lj
         prior = np.array(
-            [_V0_PRECISION] * 3 + [1.0 / cfg.prior_bias_mps2**2] * 3 + [1.0 / cfg.prior_yaw_rad**2]
+            [_V0_PRECISION] * 3
+            + [1.0 / cfg.prior_bias_mps2**2] * 3
+            + [1.0 / cfg.prior_yaw_rad**2, 1.0 / cfg.prior_lag_s**2]
         )
         present = [k for k in range(3) if np.any(axes == k)]
         old = self.ref
+        lag_prior = self._lag_prior()
         if self.frozen_bias and old is not None:
             # an axis is isolated: b and δψ are held at the values of isolation (the rows of
             # the remaining axes refit their V0 only)
             prior[3:] = 1e12
-            mean = np.array(old.theta)
+            mean = np.array(old.held().theta)
         else:
             mean = np.zeros(N_THETA)
+            mean[LAG], prior[LAG] = lag_prior
         XtW = X.T * w
         info = XtW @ X + np.diag(prior)
         rhs = XtW @ z + prior * mean
@@ -286,12 +377,39 @@ class ReferenceFit:
         theta = cov @ rhs
         if self.frozen_bias and old is not None:
             # B anchor moved: with b, δψ held, only V0 changes; keep θ's b, δψ exactly
-            theta[3:] = np.asarray(old.theta[3:])
+            theta[3:] = mean[3:]
+            # ... but not their uncertainty: held is not known. Consider covariance (V0
+            # fitted with θ₁ = (b, δψ, d) held, θ₁ uncertain by P₁ from the fit before the
+            # isolation): V0 moves with θ₁ by S = −C₀ X₀ᵀW X₁, so
+            # cov = [[C₀ + S P₁ Sᵀ, S P₁], [P₁ Sᵀ, P₁]]. A held heading error then says how
+            # uncertain it makes a healthy axis's prediction in the next acceleration.
+            c0_v = cov[:3, :3]
+            sens = -c0_v @ (XtW[:3] @ X[:, 3:])
+            p1 = np.asarray(old.cov[3:, 3:])
+            cov = np.block([[c0_v + sens @ p1 @ sens.T, sens @ p1], [p1 @ sens.T, p1]])
+        else:
+            self._remember_lag(
+                float(theta[LAG]),
+                float(cov[LAG, LAG]),
+                lag_prior,
+                rows[-1][0],
+                min(1.0, new_rows / n),
+            )
         # bounded: a fit beyond any accelerometer's bias is not applied
         b = theta[3:6]
         nb = float(np.linalg.norm(b))
         if nb > cfg.max_bias_mps2:
             theta[3:6] = b * (cfg.max_bias_mps2 / nb)
+        # a measurement is late, never early; and no autopilot is later than max_lag_s
+        theta[LAG] = min(max(float(theta[LAG]), 0.0), cfg.max_lag_s)
+        if not (self.frozen_bias and old is not None) and (
+            (theta[LAG] - lag_prior[0]) ** 2 <= 4.0 * cov[LAG, LAG]
+        ):
+            # a window that does not move the lag clearly (2σ) from what was known keeps
+            # the known value: its own estimate times L (the IMU's acceleration, 2 m/s² of
+            # noise on a vibrating quad) would only add noise to every prediction; its
+            # uncertainty stays in cov (and in σ_pred)
+            theta[LAG] = lag_prior[0]
         self.ref = Reference(
             tuple(theta.tolist()),
             np.asarray(cov, dtype=np.float64),
@@ -411,6 +529,12 @@ class AxisMonitor:
     #: white noise (plus the IMU's over one interval), for the gain of ``full``
     var_diff_mps2: float = 0.0
     _r_prev: float = math.nan
+    #: the measurement's own second differences y_k − 2y_(k−1) + y_(k−2): their recent
+    #: squares and the running mean of those squares while the axis is healthy (white noise
+    #: σ gives 6σ²; smooth motion adds only jerk·Δt²)
+    _y_prev: tuple[float, float] = (math.nan, math.nan)
+    _d2y_sq: deque[float] = field(default_factory=lambda: deque(maxlen=64))
+    var_d2y_mps2: float = 0.0
     _v_imu_at_value: float = 0.0  # the IMU's velocity when the current value was first seen
     #: running fraction of samples that repeat the previous value exactly (healthy axis);
     #: starts at 0.5 (a prior worth 2 samples: "unknown", repeats need the IMU's word)
@@ -420,6 +544,8 @@ class AxisMonitor:
 
     def __post_init__(self) -> None:
         self._var_r = self.cfg.sigma_meas_mps**2
+        # white noise of σ_meas: var(y_k − 2y_(k−1) + y_(k−2)) = 6σ²
+        self.var_d2y_mps2 = 6.0 * self.cfg.sigma_meas_mps**2
         self.sigma_r_mps = self.cfg.sigma_meas_mps
 
     # ------------------------------------------------------------------ reference
@@ -440,15 +566,18 @@ class AxisMonitor:
             return self._frozen
         return self.fit.ref if self.armed() else None
 
-    def predict(self, a_int_j: float, ints: Integrals) -> tuple[float, float]:
-        """(ŷ_j, σ_pred,j): the IMU's dead reckoning of this axis (NaN when unarmed)."""
+    def predict(
+        self, a_int_j: float, ints: Integrals, *, lagged: bool = True
+    ) -> tuple[float, float]:
+        """(ŷ_j, σ_pred,j): the IMU's dead reckoning of this axis's measurement (``lagged``)
+        or of its velocity (NaN when unarmed)."""
         ref = self.reference()
         if ref is None:
             return math.nan, math.nan
-        return ref.predict(self.index, a_int_j, ints)
+        return ref.predict(self.index, a_int_j, ints, lagged=lagged)
 
-    def predict_mps(self, a_int_j: float, ints: Integrals) -> float:
-        return self.predict(a_int_j, ints)[0]
+    def predict_mps(self, a_int_j: float, ints: Integrals, *, lagged: bool = True) -> float:
+        return self.predict(a_int_j, ints, lagged=lagged)[0]
 
     def sigma_dead_reckoning_mps(self, t_s: float) -> float:
         """1σ of the prediction's drift, growing with the age of the newest vetted sample."""
@@ -520,7 +649,24 @@ class AxisMonitor:
             d2 = [(rn[i + 1] - rn[i]) ** 2 for i in range(cfg.noise_samples)]
             nominal = 2.0 * self.sigma_r_mps**2 * CHI2_1_MEDIAN
             noise = statistics.median(d2) / nominal / cfg.noise_ratio_threshold
+            # A noisy residual is a noisy measurement only if the measurement itself is
+            # noisy: the IMU's path (an attitude estimator lost in a ballistic climb, a
+            # vibrating accelerometer) makes the residual noisy while y stays smooth.
+            own = self._own_noise_ratio()
+            if math.isfinite(own):
+                noise = min(noise, own)
         return bias, noise
+
+    def _own_noise_ratio(self) -> float:
+        """The measurement's own noise test: the median of its last ``noise_samples``
+        squared second differences over their healthy level (NaN when too few)."""
+        cfg = self.cfg
+        own = list(self._d2y_sq)[-cfg.noise_samples :]
+        if len(own) < cfg.noise_samples:
+            return math.nan
+        return (
+            statistics.median(own) / (self.var_d2y_mps2 * CHI2_1_MEDIAN) / cfg.noise_ratio_threshold
+        )
 
     def _spread_ratio(self) -> float:
         """Robust spread (1.4826 MAD) of the bias window over 3σ_r: a bias step keeps it
@@ -537,6 +683,7 @@ class AxisMonitor:
         cfg = self.cfg
         if not math.isfinite(y_mps):
             self._nan_run += 1
+            self._y_prev = (math.nan, math.nan)
             self._healthy_since_s = None
             if self._nan_run >= cfg.dropout_samples and self.state is not AxisState.FAULTY:
                 self.isolate(t_s, FaultKind.DROPOUT)
@@ -577,6 +724,14 @@ class AxisMonitor:
             while len(self._resid) > max(cfg.bias_samples, cfg.noise_samples + 1):
                 self._resid.popleft()
         self._r_prev = r
+        y1, y2 = self._y_prev
+        if math.isfinite(y1) and math.isfinite(y2):
+            d2y_sq = (y_mps - 2.0 * y1 + y2) ** 2
+            self._d2y_sq.append(d2y_sq)
+            if self.state is AxisState.OK:
+                cap = 16.0 * self.var_d2y_mps2
+                self.var_d2y_mps2 += (min(d2y_sq, cap) - self.var_d2y_mps2) / cfg.scale_samples
+        self._y_prev = (y_mps, y1)
         bias_ratio, noise_ratio = self._ratios()
         freeze_ratio = self._repeats / cfg.freeze_repeats
         ratio = max(
@@ -620,7 +775,7 @@ class AxisMonitor:
         self.fault = FaultEvent(self.axis, kind.value, t_s, None)
         # dead reckoning from the fit of this moment, if it predicts this axis
         fitted = self.armed() or self.index in self.fit.fitted_axes
-        self._frozen = self.fit.ref if fitted else None
+        self._frozen = self.fit.ref.held() if fitted and self.fit.ref is not None else None
         self.fit.frozen_bias = True
         rb = list(self._resid)[-self.cfg.bias_samples :]
         self._fault_level_mps = statistics.median(rb) if rb else 0.0

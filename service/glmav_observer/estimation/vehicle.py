@@ -55,7 +55,14 @@ import numpy as np
 
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
-from glmav_observer.estimation.fdi import FaultDetector, FdiConfig, Reference
+from glmav_observer.estimation.fdi import (
+    LAG,
+    LAG_WINDOW_S,
+    FaultDetector,
+    FdiConfig,
+    Integrals,
+    Reference,
+)
 from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact, gamma_full_optimal
 from glmav_observer.ingest.samples import (
     AidingSample,
@@ -73,6 +80,7 @@ from glmav_observer.records import (
     HealthRecord,
     MeasurementRecord,
     Record,
+    ReferenceFitSummary,
     TruthRecord,
     VelocityRecord,
 )
@@ -102,6 +110,7 @@ class EstimatorConfig:
     health_rate_hz: float = 10.0
     propagate_held_measurement: bool = True
     compensate_accel_bias: bool = True
+    compensate_lag: bool = True
     max_gap_s: float = 1.0
     handover_contamination_mps: float = 1.0
     metrics_skip_s: float = 3.0
@@ -201,7 +210,7 @@ class VehicleEstimator:
         self.fdi = FaultDetector(cfg.fdi)
         self.despike = Despiker()
         self._c_int: list[float] = [0.0, 0.0, 0.0]
-        self._ints_handover: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self._ints_handover: Integrals | None = None
         self._ref_handover: Reference | None = None
         self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
         self._n_accel_changes = 0
@@ -223,6 +232,8 @@ class VehicleEstimator:
         self._imu_interval_s = 0.0
         self._t_imu_s: float | None = None
         self._a_int: list[float] = [0.0, 0.0, 0.0]
+        #: (t, A n, A e, A d) of the last ~2 LAG_WINDOW_S: the lag regressor L (fdi)
+        self._a_hist: collections.deque[tuple[float, float, float, float]] = collections.deque()
         self._a_int_at_y: list[float] = [0.0, 0.0, 0.0]
         self._b_int: list[float] = [0.0] * 9
         self._b_int_at_y: list[float] = [0.0] * 9
@@ -325,8 +336,13 @@ class VehicleEstimator:
         self._E = E
         a = _e_times(E, f)  # earth-frame acceleration E Γ = E f + g e_d (V̇ = E Γ)
         a[2] += cfg.g_mps2
+        ai = self._a_int
         for i in range(3):
-            self._a_int[i] += a[i] * dt
+            ai[i] += a[i] * dt
+        hist = self._a_hist
+        hist.append((t, ai[0], ai[1], ai[2]))
+        while len(hist) > 2 and hist[1][0] <= t - LAG_WINDOW_S:
+            hist.popleft()
         # C = ∫ (−a_e, a_n, 0) dt: the heading-error regressor (fdi module docstring)
         self._c_int[0] -= a[1] * dt
         self._c_int[1] += a[0] * dt
@@ -388,7 +404,7 @@ class VehicleEstimator:
                 self._y_interval_s = dt_y  # the first interval seeds the mean
             else:
                 self._y_interval_s += 0.05 * (dt_y - self._y_interval_s)
-        self._y = list(s.v_ned_mps)
+        self._y = self._lag_compensated(s.v_ned_mps)
         self._t_y_s = t
         self._a_int_at_y = list(self._a_int)
         self._b_int_at_y = list(self._b_int)
@@ -401,6 +417,22 @@ class VehicleEstimator:
         self._n_meas += 1
         if self.cfg.adapt_gamma_full and self._n_meas % GAMMA_UPDATE_SAMPLES == 0:
             self._adapt_gamma_full(imu_hz)
+
+    def _lag_compensated(self, y_ned_mps: Vec3) -> list[float]:
+        """The measurement moved to the present by the fit's *observed* lag d̂ (|d̂| > 2σ,
+        bounded to [0, max_lag_s]): v(t) ≈ y(t) + d̂ L(t) (fdi module docstring), with
+        ``compensate_lag``; else y itself."""
+        y = list(y_ned_mps)
+        if not self.cfg.compensate_lag:
+            return y
+        ref = self._ref_handover if self.fdi.faulty_axes() else self.fdi.fit.ref
+        if ref is None:
+            return y
+        lag_s = ref.observed(LAG)
+        if lag_s <= 0.0:
+            return y
+        l_now = self._ints()[2]
+        return [y[i] + lag_s * l_now[i] for i in range(3)]
 
     def _adapt_gamma_full(self, imu_hz: float) -> None:
         """γ of ``full`` from the noise this vehicle sends (observer.gamma_full_optimal):
@@ -435,10 +467,19 @@ class VehicleEstimator:
     def gamma_full(self) -> float:
         return self.bank.gamma_gain[0]
 
-    def _ints(self) -> tuple[tuple[float, ...], tuple[float, float, float]]:
-        """(B, C): the integrals the FDI's regressors are built from."""
+    def _ints(self) -> Integrals:
+        """(B, C, L): the integrals the FDI's regressors are built from; L the mean
+        earth-frame acceleration over the last LAG_WINDOW_S (A's difference)."""
         c = self._c_int
-        return tuple(self._b_int), (c[0], c[1], c[2])
+        hist = self._a_hist
+        ai = self._a_int
+        l_now = (0.0, 0.0, 0.0)
+        if len(hist) >= 2:
+            t0, *a0 = hist[0]
+            span = hist[-1][0] - t0
+            if span > 0.0:
+                l_now = ((ai[0] - a0[0]) / span, (ai[1] - a0[1]) / span, (ai[2] - a0[2]) / span)
+        return tuple(self._b_int), (c[0], c[1], c[2]), l_now
 
     def _aiding_sample(self, s: AidingSample) -> None:
         """The autopilot's word on what its velocity rests on. Its estimator's own report
@@ -504,7 +545,7 @@ class VehicleEstimator:
             ax = self.fdi.axes[lost_idx]
             reason = f"{ax.fault.kind if ax.fault else 'fault'}_{NED_AXES[lost_idx]}"
             if self._active == "full":
-                pred = ax.predict_mps(self._a_int[lost_idx], self._ints())
+                pred = ax.predict_mps(self._a_int[lost_idx], self._ints(), lagged=False)
                 if (
                     math.isfinite(pred)
                     and abs(pred - v0[lost_idx]) > self.cfg.handover_contamination_mps
@@ -642,7 +683,7 @@ class VehicleEstimator:
         dpsi = ref.observed(6)
         if dpsi == 0.0:
             return 0.0
-        _, c_int = self._ints()
+        _, c_int, _ = self._ints()
         return (c_int[j] - h[1][j]) * dpsi
 
     def _health(self, t: float, out: list[Record]) -> None:
@@ -672,7 +713,18 @@ class VehicleEstimator:
                 ),
                 self.rates_fn(t) if self.rates_fn is not None else {},
                 dict(sorted(self.counters.items())),
+                self.reference_fit_summary(),
             )
+        )
+
+    def reference_fit_summary(self) -> ReferenceFitSummary | None:
+        ref = self.fdi.fit.ref
+        if ref is None:
+            return None
+        th = ref.theta
+        sd = [math.sqrt(max(float(ref.cov[k, k]), 0.0)) for k in range(len(th))]
+        return ReferenceFitSummary(
+            (th[3], th[4], th[5]), (sd[3], sd[4], sd[5]), th[6], sd[6], th[LAG], sd[LAG]
         )
 
     def _truth(self, s: TruthSample, out: list[Record]) -> None:

@@ -114,6 +114,18 @@ HEALTH: Schema = _record(
             "type": "object",
             "additionalProperties": {"type": "integer", "minimum": 0},
         },
+        "reference_fit": _nullable(
+            _object(
+                {
+                    "accel_bias_body_mps2": _VEC3,
+                    "accel_bias_sigma_mps2": _VEC3,
+                    "heading_error_rad": {"type": ["number", "null"]},
+                    "heading_error_sigma_rad": {"type": ["number", "null"]},
+                    "measurement_lag_s": {"type": ["number", "null"]},
+                    "measurement_lag_sigma_s": {"type": ["number", "null"]},
+                }
+            )
+        ),
     }
 )
 

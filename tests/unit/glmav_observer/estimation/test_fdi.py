@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from glmav_observer.estimation.fdi import (
+    LAG,
+    LAG_WINDOW_S,
     MIN_PRE_SAMPLES,
     FdiConfig,
     ReferenceFit,
@@ -99,12 +101,41 @@ def test_reference_uncertainty_grows_into_an_unobserved_heading_error() -> None:
         t = k / 25.0
         E = np.eye(3) * t
         for j in range(3):
-            fit.add(t, j, 0.0, (tuple(E.ravel().tolist()), (0.0, 0.0, 0.0)), 0.03)
+            fit.add(t, j, 0.0, (tuple(E.ravel().tolist()), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), 0.03)
     fit.prune_and_fit(4.0)
     assert fit.ref is not None
     sd_yaw = math.sqrt(fit.ref.cov[6, 6])
     assert sd_yaw == pytest.approx(cfg.prior_yaw_rad, rel=0.01)
     # 2 m/s of north velocity gained since the anchor: C_e = ∫a_n dt = 2 m/s
-    _, sig_still = fit.ref.predict(1, 0.0, (b_int, (0.0, 0.0, 0.0)))
-    _, sig_accel = fit.ref.predict(1, 0.0, (b_int, (0.0, 2.0, 0.0)))
+    _, sig_still = fit.ref.predict(1, 0.0, (b_int, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    _, sig_accel = fit.ref.predict(1, 0.0, (b_int, (0.0, 2.0, 0.0), (0.0, 0.0, 0.0)))
     assert sig_accel == pytest.approx(math.hypot(sig_still, 2.0 * cfg.prior_yaw_rad), rel=0.05)
+
+
+@pytest.mark.parametrize("lag_s", [0.0, 0.1, 0.15, 0.2])
+def test_the_fit_learns_a_late_measurement(lag_s: float) -> None:
+    """A velocity that arrives ``lag_s`` late (a GPS through a filter): y(t) = v(t − d) with
+    v = 2 sin(2π·0.25 t) m/s on north, level flight. The fit's lag column (−L, the IMU's
+    mean acceleration over the last LAG_WINDOW_S) recovers d. Tolerance 0.01 s: the
+    first-order model y ≈ v − d·L leaves second-order terms (d²ȧ/2; L lags a by
+    LAG_WINDOW_S/2) that V0 and b absorb in part; computed: ≤ 0.001 s at this 0.25 Hz,
+    0.006 s at 0.5 Hz, so 0.01 s fails only on a wrong column or sign."""
+    fit = ReferenceFit(FdiConfig())
+    w = 2.0 * math.pi * 0.25
+
+    def v(t: float) -> float:
+        return 2.0 * math.sin(w * t)
+
+    for k in range(100):  # 4 s at 25 Hz, three axes
+        t = 1.0 + k / 25.0
+        a_int = v(t) - v(0.0)  # A_n = ∫ a_n dt
+        l_n = (v(t) - v(t - LAG_WINDOW_S)) / LAG_WINDOW_S
+        b_int = tuple((np.eye(3) * t).ravel().tolist())
+        for j in range(3):
+            z = v(t - lag_s) - a_int if j == 0 else 0.0
+            fit.add(t, j, z, (b_int, (0.0, a_int, 0.0), (l_n, 0.0, 0.0)), 0.03)
+    fit.prune_and_fit(5.0)
+    assert fit.ref is not None
+    assert fit.ref.theta[LAG] == pytest.approx(lag_s, abs=0.01)
+    # an observed lag (> 2σ) for every lag but zero: the compensation applies it
+    assert (fit.ref.observed(LAG) > 0.0) == (lag_s > 0.0)

@@ -20,6 +20,7 @@ from glmav_observer.records import (
     FaultEvent,
     HealthRecord,
     MeasurementRecord,
+    ReferenceFitSummary,
     TruthRecord,
     VelocityRecord,
 )
@@ -74,6 +75,18 @@ def health_records(draw: st.DrawFn) -> HealthRecord:
         isolated_faults=tuple(draw(faults)),
         input_rates_hz=draw(st.dictionaries(st.text(max_size=12), st.floats(0, 1e4), max_size=4)),
         counters=draw(st.dictionaries(st.text(max_size=12), st.integers(0, 2**40), max_size=4)),
+        reference_fit=draw(
+            st.none()
+            | st.builds(
+                ReferenceFitSummary,
+                accel_bias_body_mps2=vec3,
+                accel_bias_sigma_mps2=vec3,
+                heading_error_rad=finite,
+                heading_error_sigma_rad=finite,
+                measurement_lag_s=finite,
+                measurement_lag_sigma_s=finite,
+            )
+        ),
     )
 
 
