@@ -1,0 +1,520 @@
+"""Self-calibrating aerodynamic aiding of a lost earth velocity axis (issue 13).
+
+A rotorcraft's accelerometer feels the horizontal drag of the air flowing past it. In body
+axes (FRD), per horizontal body axis j ∈ {x, y}:
+
+    f_j = c_j − k_j · u_j,        u = Eᵀ (v_ned − w_ned),   w_ned = (w_n, w_e, 0)
+
+with ``f`` the specific force (m/s², what the accelerometer reads), ``u`` the body-frame
+airspeed (m/s), ``E`` the body→NED rotation (13) (:func:`~.observer.e_exact`), ``k_j`` (1/s)
+the linear drag coefficient, ``c_j`` (m/s²) a constant (accelerometer bias, trim force),
+``w`` the wind. With ``r_j`` the j-th row of Eᵀ (= the j-th column of E, a vector over
+n, e, d) this is linear in the parameters θ_j = (c_j, k_j, k_j·w_n, k_j·w_e):
+
+    f_j = φ_jᵀ θ_j,   φ_j = (1, −r_j·v_ned, r_j,n, r_j,e)                         (A1)
+
+**Per-axis fit, wind reconciled afterwards.** Each body axis is fitted on its own (two
+4-parameter linear least-squares problems). Fitting the wind jointly would make the model
+nonlinear (the products k_j·w) for no gain in what is used: the pseudo-measurement needs
+only the prediction φ_jᵀθ_j, which each axis's fit gives with its own covariance. When the
+heading barely changes, c_j and k_j·w are nearly collinear; the fit's covariance then stays
+large along that direction but the prediction at the current attitude stays sharp (its
+variance φᵀPφ is what the σ uses), so nothing is lost. The wind is reported (for display)
+as the precision-weighted mean of the two axes' (k_j·w)/k_j (:meth:`DragModel.wind_ne_mps`).
+
+**Learning** (:meth:`DragModel.learn`, while all three axes are healthy, at the velocity
+measurement rate, ``f`` averaged by the caller over the interval): exponentially weighted
+least squares in information form with forgetting *towards the prior* (time constant
+``tau_s``, default 90 s):
+
+    Λ ← λ Λ + (1 − λ) Λ₀ + φ φᵀ,   η ← λ η + (1 − λ) Λ₀ θ₀ + φ f,   λ = exp(−Δt / τ)
+
+so the information never decays below the weak prior Λ₀ (no covariance wind-up when the
+vehicle hovers) and θ = Λ⁻¹η. The residual spread σ_f,j is the exponentially weighted
+RMS of the one-step-ahead prediction residual e = f − φᵀθ_prev, normalised by
+(1 + φᵀΛ⁻¹φ) (its expected inflation), and the coefficient covariance is σ_f² Λ⁻¹.
+
+**Its own test** (:meth:`DragModel.trust`): enough data (effective sample count), enough
+excitation (the spread of the body-frame ground speed r_j·v, equal to the airspeed's under
+a steady wind), k_j clearly positive (k_j / σ(k_j) ≥ ``k_z_min``) and a residual spread
+small enough to be useful (σ_f,j ≤ ``sigma_f_max_mps2``). Untrusted → no pseudo-measurement.
+
+**Pseudo-measurement** (:meth:`DragModel.pseudo_measurement`): with the two measured earth
+axes known, each body row (A1) is one equation in the lost axis L:
+
+    v_L,j = (c_j + r_j,n k_j w_n + r_j,e k_j w_e − k_j Σ_{i≠L} r_j,i v_i − f_j) / (k_j r_j,L)
+
+with variance σ_f,j²(1 + φ_jᵀΛ_j⁻¹φ_j)/(k_j r_j,L)² (+ the measured axes' noise through
+k_j r_j,i); the two rows are combined by inverse-variance weighting. None when the model
+is untrusted or the lost axis is not observable at this attitude (max_j |r_j,L| <
+``row_min``: a level vehicle cannot see d through horizontal drag) or the result's σ
+exceeds ``sigma_max_mps``.
+
+**The aided axis** (:class:`AidedAxis`), a one-state Kalman filter on the lost axis's
+velocity (m/s): :meth:`AidedAxis.propagate` at the IMU rate with the earth-frame
+acceleration of that axis (a_L = (E Γ)_L, Γ = f + g_body, (12)); :meth:`AidedAxis.update`
+at the measurement rate with the pseudo-measurement, gated at 5σ. See its docstring for
+the noise model. It starts from the hand-over value and σ.
+
+Use from the estimator (per vehicle)::
+
+    model = DragModel()
+    # every velocity measurement while n, e, d are all healthy:
+    model.learn(t_s, f_mean_body_mps2, E, v_ned_mps)
+    # at the fault on axis L (0 n, 1 e, 2 d):
+    axis = AidedAxis(L, v0_mps=v_meas[L], sigma0_mps=sigma_meas)
+    # every IMU sample:        axis.propagate(dt_s, a_ned_mps2[L])
+    # every velocity sample:   pm = model.pseudo_measurement(f_mean, E, v_meas, L)
+    #                          axis.update(pm)          # pm may be None
+    # report axis.state() -> AidedState(v_mps, sigma_mps, aided)
+
+Cost: one ``learn`` is a handful of 2×4 / 2×4×4 numpy operations and one batched 4×4
+solve (``benchmarks/aero.py`` measures it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Number of parameters per body axis: (c, k, k·w_n, k·w_e, q).
+N_PARAM = 5
+#: Index of k (the linear drag coefficient) and q (the quadratic one) in θ.
+_K = 1
+_Q = 4
+
+
+@dataclass(frozen=True, slots=True)
+class DragModelConfig:
+    """Settings of :class:`DragModel` (defaults: uninformed, see each comment)."""
+
+    #: forgetting time constant, s (issue 13: slow, ~60-120 s)
+    tau_s: float = 90.0
+    #: prior σ of θ = (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m) around θ₀ = 0. k, k·w
+    #: and q: several times any plausible value (k < 1 1/s, |w| < 10 m/s, q < 0.2 1/m),
+    #: uninformed. c: 0.5 m/s², the size of a MEMS accelerometer's bias after calibration
+    #: (≤ 50 mg) plus a trim force. This one matters: at a constant heading c and k·w enter
+    #: (A1) through the same regressor (r_j ≈ const) and only the prior splits them; a
+    #: physical c puts the offset where it belongs (the wind, which rotates with the
+    #: heading) instead of a constant that does not (measured on f_coax_clean: an
+    #: uninformed c gave a 1.4 m/s phantom wind and 2 m/s errors after the next turn)
+    prior_sigma_theta: tuple[float, float, float, float, float] = (0.5, 2.0, 5.0, 5.0, 1.0)
+    #: σ_f before 10 effective samples, m/s² (large: untrusted until data says otherwise)
+    sigma_f_initial_mps2: float = 1.0
+    #: floor of σ_f, m/s²: a simulator's accelerometer can be cleaner than any real one
+    #: (ArduPilot SITL fits to 0.003); below ~0.02 (a MEMS accelerometer's noise averaged
+    #: over 40 ms, plus vibration) the model would claim more than a real sensor supports
+    sigma_f_floor_mps2: float = 0.02
+    #: effective number of samples before the model may be trusted (≈ 10 s at 10 Hz)
+    n_eff_min: float = 100.0
+    #: minimum spread (std) of the body-frame speed r_j·v per axis, m/s
+    speed_spread_min_mps: float = 0.3
+    #: k_j / σ(k_j) at least this (k clearly > 0)
+    k_z_min: float = 5.0
+    #: σ_f,j at most this, m/s² (a model that explains little is refused: at k ≈ 0.25 1/s
+    #: σ_f = 0.15 m/s² is already 0.6 m/s per row)
+    sigma_f_max_mps2: float = 0.15
+    #: a sample whose one-step residual exceeds this many σ is not learnt (a GPS glitch)...
+    outlier_sigma: float = 5.0
+    #: ...unless this many come in a row (the vehicle changed: learn it, σ_f grows)
+    outlier_run_max: int = 25
+    #: gaps longer than this reset nothing but are clipped (a long gap forgets at most this), s
+    max_gap_s: float = 5.0
+    #: fit the quadratic term q_j·u_j|u_j| (A2); False: linear drag only
+    quadratic: bool = True
+
+
+class PseudoMeasurement(NamedTuple):
+    """The lost axis's velocity from the drag model, m/s, and its 1σ, m/s.
+
+    ``sigma_model_mps`` is the part of σ from the coefficients' uncertainty, which is the
+    same from one sample to the next (not averaged away by repeated updates)."""
+
+    v_mps: float
+    sigma_mps: float
+    sigma_model_mps: float
+
+
+class Trust(NamedTuple):
+    """The model's own test: ``ok`` and the reason when not."""
+
+    ok: bool
+    reason: str
+
+
+class DragModel:
+    """Per-body-axis (x, y) drag with wind, learnt online (see the module docstring)."""
+
+    def __init__(self, config: DragModelConfig | None = None) -> None:
+        self.config = config or DragModelConfig()
+        cfg = self.config
+        #: prior information Λ₀ = diag(1/σ_θ²), per axis (2, 5, 5)
+        self._lam0 = np.broadcast_to(
+            np.diag(1.0 / np.asarray(cfg.prior_sigma_theta) ** 2), (2, N_PARAM, N_PARAM)
+        ).copy()
+        self._lam = self._lam0.copy()
+        self._eta = np.zeros((2, N_PARAM))
+        self._theta = np.zeros((2, N_PARAM))
+        self._P = np.linalg.inv(self._lam)  # Λ⁻¹ = Cov(θ), (2, 5, 5)
+        #: exponentially weighted Σ e² σ_f²/(σ_f² + φᵀPφ) per axis, and Σ weights
+        self._res_sum = np.zeros(2)
+        self._n_eff = 0.0
+        #: exponentially weighted mean and mean square of r_j·v (body ground speed), per axis
+        self._s_sum = np.zeros(2)
+        self._s2_sum = np.zeros(2)
+        self._t_last_s: float | None = None
+        self.n_learned = 0
+        #: samples not learnt as outliers (one-step residual > outlier_sigma σ)
+        self.n_outliers = 0
+        self._outlier_run = 0
+
+    # ------------------------------------------------------------------ learning
+    def learn(
+        self,
+        t_s: float,
+        f_body_mps2: FloatArray | tuple[float, float, float],
+        E: FloatArray,
+        v_ned_mps: FloatArray | tuple[float, float, float],
+    ) -> None:
+        """One healthy sample: mean specific force over the interval (FRD, m/s²), body→NED
+        rotation E (3×3) and the measured NED velocity (m/s). Non-finite input is ignored."""
+        f = np.asarray(f_body_mps2, dtype=np.float64)
+        v = np.asarray(v_ned_mps, dtype=np.float64)
+        Em = np.asarray(E, dtype=np.float64)
+        if not (np.isfinite(f).all() and np.isfinite(v).all() and np.isfinite(Em).all()):
+            return
+        cfg = self.config
+        phi = _regressors(Em, v, cfg.quadratic)  # (2, 5)
+        y = f[:2]
+        # one-step-ahead residual with the previous θ, scaled to σ_f² by its expected variance
+        var_f = self.sigma_f_mps2**2
+        e = y - np.einsum("jp,jp->j", phi, self._theta)
+        var_pred = var_f + np.einsum("jp,jpq,jq->j", phi, self._P, phi)
+        if self._n_eff >= cfg.n_eff_min and (e * e > cfg.outlier_sigma**2 * var_pred).any():
+            self.n_outliers += 1
+            self._outlier_run += 1
+            if self._outlier_run < cfg.outlier_run_max:
+                return  # not learnt; the next sample's forgetting spans this interval too
+        else:
+            self._outlier_run = 0
+        if self._t_last_s is None:
+            lam = 1.0
+        else:
+            dt = min(max(t_s - self._t_last_s, 0.0), cfg.max_gap_s)
+            lam = math.exp(-dt / cfg.tau_s)
+        self._t_last_s = t_s
+        self._res_sum = lam * self._res_sum + e * e * var_f / var_pred
+        self._n_eff = lam * self._n_eff + 1.0
+        s = -phi[:, _K]  # r_j·v
+        self._s_sum = lam * self._s_sum + s
+        self._s2_sum = lam * self._s2_sum + s * s
+        # information update weighted by 1/σ_f², forgetting towards the prior (θ₀ = 0, η₀ = 0)
+        wt = (1.0 / var_f)[:, None]
+        self._lam = (
+            lam * self._lam
+            + (1.0 - lam) * self._lam0
+            + (phi * wt)[:, :, None] * phi[:, None, :]
+        )
+        self._eta = lam * self._eta + phi * (y[:, None] * wt)
+        self._P = np.linalg.inv(self._lam)
+        self._theta = np.einsum("jpq,jq->jp", self._P, self._eta)
+        self.n_learned += 1
+
+    # ------------------------------------------------------------------ state
+    @property
+    def theta(self) -> FloatArray:
+        """θ per body axis (2, 5): (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m)."""
+        return self._theta.copy()
+
+    @property
+    def sigma_f_mps2(self) -> FloatArray:
+        """Residual spread σ_f per body axis (x, y), m/s²."""
+        cfg = self.config
+        if self._n_eff < 10.0:
+            return np.full(2, cfg.sigma_f_initial_mps2)
+        out: FloatArray = np.maximum(np.sqrt(self._res_sum / self._n_eff), cfg.sigma_f_floor_mps2)
+        return out
+
+    @property
+    def cov_theta(self) -> FloatArray:
+        """Covariance of θ per body axis (2, 5, 5): Λ⁻¹."""
+        return self._P.copy()
+
+    @property
+    def k_per_s(self) -> FloatArray:
+        """Linear drag coefficients (k_x, k_y), 1/s."""
+        return self._theta[:, _K].copy()
+
+    @property
+    def q_per_m(self) -> FloatArray:
+        """Quadratic drag coefficients (q_x, q_y), 1/m."""
+        return self._theta[:, _Q].copy()
+
+    @property
+    def speed_spread_mps(self) -> FloatArray:
+        """Weighted std of the body-frame ground speed r_j·v per axis, m/s."""
+        if self._n_eff <= 0.0:
+            return np.zeros(2)
+        m = self._s_sum / self._n_eff
+        out: FloatArray = np.sqrt(np.maximum(self._s2_sum / self._n_eff - m * m, 0.0))
+        return out
+
+    def wind_ne_mps(self) -> tuple[float, float, float] | None:
+        """Wind (w_n, w_e) m/s from the two axes' (k·w)/k, precision-weighted, and its σ
+        (m/s, the larger of the two components'); None while k is not clearly positive."""
+        k = self._theta[:, _K]
+        cov = self.cov_theta
+        var_k = cov[:, _K, _K]
+        if not (k > 3.0 * np.sqrt(var_k)).all():
+            return None
+        w = self._theta[:, 2:4] / k[:, None]  # (2 axes, n e)
+        # first-order variance of a/k: (var a + (a/k)² var k − 2 (a/k) cov(a, k)) / k²
+        var_a = cov[:, (2, 3), (2, 3)]
+        cov_ak = cov[:, (2, 3), _K]
+        var = (var_a + w**2 * var_k[:, None] - 2.0 * w * cov_ak) / (k**2)[:, None]
+        wt = 1.0 / np.maximum(var, 1e-12)
+        w_ne = (wt * w).sum(axis=0) / wt.sum(axis=0)
+        sig = np.sqrt(1.0 / wt.sum(axis=0))
+        return float(w_ne[0]), float(w_ne[1]), float(sig.max())
+
+    def trusted_rows(self) -> tuple[NDArray[np.bool_], str]:
+        """Which body rows (x, y) pass the model's own test, and why the others do not."""
+        cfg = self.config
+        if self._n_eff < cfg.n_eff_min:
+            return np.zeros(2, dtype=bool), f"n_eff {self._n_eff:.0f} < {cfg.n_eff_min:.0f}"
+        spread = self.speed_spread_mps
+        sig_f = self.sigma_f_mps2
+        k = self._theta[:, _K]
+        z = k / np.sqrt(self._P[:, _K, _K])
+        ok = np.ones(2, dtype=bool)
+        why: list[str] = []
+        for j, name in enumerate("xy"):
+            if spread[j] < cfg.speed_spread_min_mps:
+                why.append(f"{name}: speed spread {spread[j]:.2f} m/s")
+            elif sig_f[j] > cfg.sigma_f_max_mps2:
+                why.append(f"{name}: residual spread {sig_f[j]:.3f} m/s²")
+            elif z[j] < cfg.k_z_min:
+                why.append(f"{name}: k {k[j]:.3f} 1/s not clearly > 0 (z {z[j]:.1f})")
+            else:
+                continue
+            ok[j] = False
+        return ok, "; ".join(why) if why else "ok"
+
+    def trust(self) -> Trust:
+        """The model's own test (module docstring): trusted when at least one body row
+        passes it (the pseudo-measurement uses only rows that do), else the reasons."""
+        ok, why = self.trusted_rows()
+        return Trust(bool(ok.any()), why)
+
+    # ------------------------------------------------------------------ using it
+    def pseudo_measurement(
+        self,
+        f_body_mps2: FloatArray | tuple[float, float, float],
+        E: FloatArray,
+        v_ned_known_mps: FloatArray | tuple[float, float, float],
+        lost_axis: int,
+        *,
+        sigma_v_known_mps: float = 0.1,
+        row_min: float = 0.2,
+        sigma_max_mps: float = 1.0,
+    ) -> PseudoMeasurement | None:
+        """The lost NED axis (0 n, 1 e, 2 d) from the two body drag equations (module
+        docstring), or None (untrusted model, axis unobservable at this attitude, σ too
+        large). ``v_ned_known_mps[lost_axis]`` is ignored; the other two are measured with
+        noise σ ``sigma_v_known_mps``."""
+        if lost_axis not in (0, 1, 2):
+            raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
+        f = np.asarray(f_body_mps2, dtype=np.float64)
+        v = np.array(v_ned_known_mps, dtype=np.float64)
+        Em = np.asarray(E, dtype=np.float64)
+        v[lost_axis] = 0.0
+        if not (np.isfinite(f).all() and np.isfinite(v).all() and np.isfinite(Em).all()):
+            return None
+        rows = Em[:, :2].T  # r_j = j-th column of E, (2 body axes, 3 NED)
+        r_lost = rows[:, lost_axis]
+        use, _ = self.trusted_rows()
+        use &= np.abs(r_lost) >= row_min
+        if not use.any():
+            return None
+        th = self._theta
+        sig_f = self.sigma_f_mps2
+        known = [i for i in range(3) if i != lost_axis]
+        parts: list[tuple[float, float, float]] = []
+        for j in range(2):
+            if not use[j]:
+                continue
+            c, k, kwn, kwe, q = (float(x) for x in th[j])
+            # (A2): f_j = a_j − k s_j − q s_j|s_j| with a_j = c + r_n k·w_n + r_e k·w_e;
+            # solve for s_j = r_j·v (monotone while k + 2q|s| > 0): the root of the
+            # quadratic on the sign branch of the linear solution
+            a_j = c + rows[j, 0] * kwn + rows[j, 1] * kwe - float(f[j])
+            s_j = a_j / k
+            if q != 0.0:
+                sg = 1.0 if s_j >= 0.0 else -1.0
+                disc = k * k + 4.0 * q * sg * a_j
+                if disc >= 0.0:
+                    s_j = sg * 2.0 * abs(a_j) / (k + math.sqrt(disc))  # stable form of the root
+            slope = k + 2.0 * q * abs(s_j)  # −∂f_j/∂s_j
+            if slope <= 0.0:
+                continue
+            g = slope * r_lost[j]  # −∂f_j/∂v_L
+            v_j = (s_j - sum(rows[j, i] * v[i] for i in known)) / r_lost[j]
+            phi = np.array((1.0, -s_j, rows[j, 0], rows[j, 1], -s_j * abs(s_j)))
+            var_model = float(phi @ self._P[j] @ phi) / g**2
+            var_white = (
+                sig_f[j] ** 2 + sum((slope * rows[j, i] * sigma_v_known_mps) ** 2 for i in known)
+            ) / g**2
+            parts.append((v_j, var_white + var_model, var_model))
+        if not parts:
+            return None
+        den = sum(1.0 / var_j for _, var_j, _ in parts)
+        var = 1.0 / den
+        v_lost = var * sum(v_j / var_j for v_j, var_j, _ in parts)
+        var_model_comb = sum((var / var_j) ** 2 * var_m for _, var_j, var_m in parts)
+        sigma = math.sqrt(var)
+        if sigma > sigma_max_mps:
+            return None
+        return PseudoMeasurement(v_lost, sigma, math.sqrt(var_model_comb))
+
+
+def _regressors(E: FloatArray, v_ned_mps: FloatArray, quadratic: bool) -> FloatArray:
+    """φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), s_j = r_j·v, for j = x, y ((A1), (A2));
+    r_j the j-th column of E. Shape (2, 5)."""
+    rows = E[:, :2].T  # (2, 3)
+    s = rows @ v_ned_mps
+    phi = np.empty((2, N_PARAM))
+    phi[:, 0] = 1.0
+    phi[:, 1] = -s
+    phi[:, 2] = rows[:, 0]
+    phi[:, 3] = rows[:, 1]
+    phi[:, 4] = -s * np.abs(s) if quadratic else 0.0
+    return phi
+
+
+# ---------------------------------------------------------------------- the aided axis
+@dataclass(frozen=True, slots=True)
+class AidedAxisConfig:
+    """Noise model of :class:`AidedAxis`."""
+
+    #: white noise of the earth-frame acceleration, m/s²/√Hz (accelerometer noise density
+    #: of a small MEMS IMU with vibration, ~0.05; integrates to σ·√t)
+    accel_noise_mps2_rthz: float = 0.05
+    #: unknown constant error of the earth-frame acceleration, m/s², integrating to σ·t.
+    #: Horizontal (n, e): accelerometer bias left after calibration (~0.02) plus g·sin of
+    #: the attitude estimate's error (~0.2°: 0.035), ≈ 0.05. Vertical (d): the attitude
+    #: error enters only at second order (g·(1 − cos)), so the bias alone, 0.02
+    accel_bias_h_mps2: float = 0.05
+    accel_bias_v_mps2: float = 0.02
+    #: gate: an update whose |innovation| > gate_sigma · √(P + R) is rejected
+    gate_sigma: float = 5.0
+    #: correlation time of the pseudo-measurement's white part, s: updates closer than
+    #: this are not independent (turbulence, manoeuvres), so R is inflated by τ_c/Δt
+    corr_time_s: float = 1.0
+    #: correlation time of its model part (the coefficients' error: changes only as the
+    #: attitude does), s; R's model part is inflated by τ_m/Δt likewise
+    model_corr_time_s: float = 10.0
+    #: this many rejections in a row and aiding stops (the model no longer fits)
+    max_rejections: int = 50
+
+
+class AidedState(NamedTuple):
+    """The lost axis: velocity (m/s), its 1σ (m/s), and whether the last accepted
+    pseudo-measurement is recent (aided) or the axis is dead-reckoned."""
+
+    v_mps: float
+    sigma_mps: float
+    aided: bool
+
+
+class AidedAxis:
+    """One-state Kalman filter of a lost NED velocity axis (m/s).
+
+    Process model: v̇ = a_L + b + n, with a_L the IMU's earth-frame acceleration of the
+    axis, b an unknown constant error of σ ``accel_bias_mps2`` and n white noise of density
+    ``accel_noise_mps2_rthz``. A one-state filter cannot carry b, so the variance grows as
+    it would under a constant b since the last accepted update, τ seconds ago:
+
+        P ← P + (σ_n² + 2 σ_b² τ) Δt        (pure propagation: P = P₀ + σ_n² t + σ_b² t²)
+
+    Update with a pseudo-measurement z (σ_z, model part σ_m): innovation ν = z − v,
+    R = (σ_z² − σ_m²) · max(1, τ_c/Δt_u) + σ_m²; rejected when |ν| > 5 √(P + R); after an
+    accepted update P ≥ σ_m² (the coefficient error is the same in every pseudo-measurement
+    and is not averaged away). ``max_rejections`` in a row stop the aiding for good.
+    """
+
+    def __init__(
+        self,
+        lost_axis: int,
+        v0_mps: float,
+        sigma0_mps: float,
+        t0_s: float = 0.0,
+        config: AidedAxisConfig | None = None,
+    ) -> None:
+        if lost_axis not in (0, 1, 2):
+            raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
+        self.lost_axis = lost_axis
+        self.config = config or AidedAxisConfig()
+        self.v_mps = float(v0_mps)
+        self.P_mps2 = float(sigma0_mps) ** 2
+        self.t_s = t0_s
+        self._tau_s = 0.0  # time since the last accepted update (or the hand-over)
+        self._t_update_s: float | None = None
+        self.n_accepted = 0
+        self.n_rejected = 0
+        self._rejections_in_row = 0
+        self.stopped = False
+
+    def propagate(self, dt_s: float, a_ned_axis_mps2: float) -> None:
+        """Advance by ``dt_s`` with the earth-frame acceleration of the lost axis (m/s²)."""
+        if dt_s <= 0.0 or not math.isfinite(a_ned_axis_mps2):
+            return
+        cfg = self.config
+        sigma_b = cfg.accel_bias_v_mps2 if self.lost_axis == 2 else cfg.accel_bias_h_mps2
+        self.v_mps += a_ned_axis_mps2 * dt_s
+        # exact integral of σ_n² + 2 σ_b² τ over [τ, τ + Δt]
+        self.P_mps2 += cfg.accel_noise_mps2_rthz**2 * dt_s + sigma_b**2 * (
+            (self._tau_s + dt_s) ** 2 - self._tau_s**2
+        )
+        self._tau_s += dt_s
+        self.t_s += dt_s
+
+    def update(self, pm: PseudoMeasurement | None) -> bool:
+        """Fuse a pseudo-measurement (None: nothing to fuse). True when accepted."""
+        if pm is None or self.stopped:
+            return False
+        cfg = self.config
+        dt_u = cfg.corr_time_s if self._t_update_s is None else self.t_s - self._t_update_s
+        self._t_update_s = self.t_s
+        var_m = pm.sigma_model_mps**2
+        var_white = max(pm.sigma_mps**2 - var_m, 0.0)
+        dt_u = max(dt_u, 1e-6)
+        R = var_white * max(1.0, cfg.corr_time_s / dt_u) + var_m * max(
+            1.0, cfg.model_corr_time_s / dt_u
+        )
+        nu = pm.v_mps - self.v_mps
+        S = self.P_mps2 + R
+        # the gate uses the pseudo-measurement's own σ (not the correlation-inflated R)
+        if nu * nu > cfg.gate_sigma**2 * (self.P_mps2 + pm.sigma_mps**2):
+            self.n_rejected += 1
+            self._rejections_in_row += 1
+            if self._rejections_in_row >= cfg.max_rejections:
+                self.stopped = True
+            return False
+        K = self.P_mps2 / S
+        self.v_mps += K * nu
+        self.P_mps2 = max((1.0 - K) * self.P_mps2, var_m)
+        self._tau_s = 0.0
+        self.n_accepted += 1
+        self._rejections_in_row = 0
+        return True
+
+    def state(self, aided_within_s: float = 1.0) -> AidedState:
+        """(v, σ, aided): aided while an update was accepted in the last ``aided_within_s``."""
+        aided = self.n_accepted > 0 and self._tau_s <= aided_within_s and not self.stopped
+        return AidedState(self.v_mps, math.sqrt(self.P_mps2), aided)
