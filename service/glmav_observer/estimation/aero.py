@@ -124,6 +124,28 @@ class DragModelConfig:
     outlier_sigma: float = 5.0
     #: ...unless this many come in a row (the vehicle changed: learn it, σ_f grows)
     outlier_run_max: int = 25
+    #: validation while healthy: the pseudo-measurement of each axis (one axis per learn
+    #: call, in turn, made before the sample is learnt) against the measured value, whose
+    #: noise is this σ, m/s
+    sigma_v_meas_mps: float = 0.05
+    #: effective number of validations per axis before that axis may be aided
+    nees_n_min: float = 10.0
+    #: normalised squared error above this: the axis is refused (its σ would have to be
+    #: inflated more than √25 = 5 times); between 1 and this, σ is inflated by √NEES
+    nees_max: float = 25.0
+    #: NED axes that may be aided (0 n, 1 e, 2 d). d is off by default: through the body
+    #: x/y rows it is seen only as −sinθ·v_d, an extrapolation the learning data cannot
+    #: check (v_d ≈ 0 in cruise) and which fails on ArduPilot's SITL (aided d errors up to
+    #: 1.6 m/s where dead reckoning stays ≤ 0.1 m/s over 60 s: docs/benchmarks/aero.md)
+    aided_axes: tuple[int, ...] = (0, 1)
+    #: both rows used and their two values of the lost axis differ by more than this many
+    #: σ: the model no longer fits (a wind change during the fault): no pseudo-measurement
+    row_consistency_sigma: float = 3.0
+    #: ...and when that happens in more than this fraction of the recent two-row
+    #: pseudo-measurements (exponential average over ~``inconsistency_window`` calls, at
+    #: least 10 of them), every pseudo-measurement is refused until the model learns again
+    inconsistency_max: float = 0.2
+    inconsistency_window: float = 25.0
     #: gaps longer than this reset nothing but are clipped (a long gap forgets at most this), s
     max_gap_s: float = 5.0
     #: fit the quadratic term q_j·u_j|u_j| (A2); False: linear drag only
@@ -173,6 +195,14 @@ class DragModel:
         #: samples not learnt as outliers (one-step residual > outlier_sigma σ)
         self.n_outliers = 0
         self._outlier_run = 0
+        #: per NED axis: exponentially weighted Σ z² and Σ weights of the validation
+        #: z = (pseudo-measurement − measured) / √(σ² + σ_meas²), and its last time
+        self._nees_sum = np.zeros(3)
+        self._nees_n = np.zeros(3)
+        self._nees_t_s = np.full(3, np.nan)
+        #: two-row pseudo-measurements since the last learn: count and EW inconsistency
+        self._two_row_n = 0
+        self._inconsistency = 0.0
 
     # ------------------------------------------------------------------ learning
     def learn(
@@ -196,6 +226,10 @@ class DragModel:
         var_f = self.sigma_f_mps2**2
         e = y - np.einsum("jp,jp->j", phi, self._theta)
         var_pred = var_f + np.einsum("jp,jpq,jq->j", phi, self._P, phi)
+        self._two_row_n = 0
+        self._inconsistency = 0.0
+        if self._n_eff >= cfg.n_eff_min:
+            self._validate(t_s, f, Em, v)
         if self._n_eff >= cfg.n_eff_min and (e * e > cfg.outlier_sigma**2 * var_pred).any():
             self.n_outliers += 1
             self._outlier_run += 1
@@ -217,14 +251,39 @@ class DragModel:
         # information update weighted by 1/σ_f², forgetting towards the prior (θ₀ = 0, η₀ = 0)
         wt = (1.0 / var_f)[:, None]
         self._lam = (
-            lam * self._lam
-            + (1.0 - lam) * self._lam0
-            + (phi * wt)[:, :, None] * phi[:, None, :]
+            lam * self._lam + (1.0 - lam) * self._lam0 + (phi * wt)[:, :, None] * phi[:, None, :]
         )
         self._eta = lam * self._eta + phi * (y[:, None] * wt)
         self._P = np.linalg.inv(self._lam)
         self._theta = np.einsum("jpq,jq->jp", self._P, self._eta)
         self.n_learned += 1
+
+    def _validate(self, t_s: float, f: FloatArray, E: FloatArray, v: FloatArray) -> None:
+        """One axis in turn: how far the pseudo-measurement is from the measurement."""
+        cfg = self.config
+        axis = self.n_learned % 3
+        pm = self.pseudo_measurement(f, E, v, axis, validated=False)
+        if pm is None:
+            return
+        t_last = self._nees_t_s[axis]
+        lam = 1.0 if math.isnan(t_last) else math.exp(-min(t_s - t_last, cfg.max_gap_s) / cfg.tau_s)
+        self._nees_t_s[axis] = t_s
+        z2 = (pm.v_mps - v[axis]) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
+        self._nees_sum[axis] = lam * self._nees_sum[axis] + z2
+        self._nees_n[axis] = lam * self._nees_n[axis] + 1.0
+
+    @property
+    def broken(self) -> bool:
+        """The two body rows have disagreed too often since the last learnt sample."""
+        cfg = self.config
+        return self._two_row_n >= 10 and self._inconsistency > cfg.inconsistency_max
+
+    @property
+    def nees(self) -> FloatArray:
+        """Validation's mean normalised squared error per NED axis (NaN before any)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out: FloatArray = np.where(self._nees_n > 0.0, self._nees_sum / self._nees_n, np.nan)
+        return out
 
     # ------------------------------------------------------------------ state
     @property
@@ -244,7 +303,8 @@ class DragModel:
     @property
     def cov_theta(self) -> FloatArray:
         """Covariance of θ per body axis (2, 5, 5): Λ⁻¹."""
-        return self._P.copy()
+        out: FloatArray = np.array(self._P, dtype=np.float64)
+        return out
 
     @property
     def k_per_s(self) -> FloatArray:
@@ -323,11 +383,13 @@ class DragModel:
         sigma_v_known_mps: float = 0.1,
         row_min: float = 0.2,
         sigma_max_mps: float = 1.0,
+        validated: bool = True,
     ) -> PseudoMeasurement | None:
         """The lost NED axis (0 n, 1 e, 2 d) from the two body drag equations (module
         docstring), or None (untrusted model, axis unobservable at this attitude, σ too
         large). ``v_ned_known_mps[lost_axis]`` is ignored; the other two are measured with
-        noise σ ``sigma_v_known_mps``."""
+        noise σ ``sigma_v_known_mps``. ``validated``: only for an axis whose validation
+        while healthy passed, σ inflated by √NEES when that is above 1."""
         if lost_axis not in (0, 1, 2):
             raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
         f = np.asarray(f_body_mps2, dtype=np.float64)
@@ -336,6 +398,15 @@ class DragModel:
         v[lost_axis] = 0.0
         if not (np.isfinite(f).all() and np.isfinite(v).all() and np.isfinite(Em).all()):
             return None
+        scale = 1.0
+        if validated:
+            cfg = self.config
+            if lost_axis not in cfg.aided_axes:
+                return None
+            n, nees = self._nees_n[lost_axis], self.nees[lost_axis]
+            if n < cfg.nees_n_min or not nees <= cfg.nees_max:
+                return None
+            scale = math.sqrt(max(1.0, float(nees)))
         rows = Em[:, :2].T  # r_j = j-th column of E, (2 body axes, 3 NED)
         r_lost = rows[:, lost_axis]
         use, _ = self.trusted_rows()
@@ -373,14 +444,25 @@ class DragModel:
             parts.append((v_j, var_white + var_model, var_model))
         if not parts:
             return None
+        if len(parts) == 2:
+            cfg = self.config
+            (v_x, var_x, _), (v_y, var_y, _) = parts
+            bad = (v_x - v_y) ** 2 > cfg.row_consistency_sigma**2 * (var_x + var_y)
+            if validated:
+                self._two_row_n += 1
+                self._inconsistency += (float(bad) - self._inconsistency) / cfg.inconsistency_window
+            if bad:
+                return None
+        if validated and self.broken:
+            return None
         den = sum(1.0 / var_j for _, var_j, _ in parts)
         var = 1.0 / den
         v_lost = var * sum(v_j / var_j for v_j, var_j, _ in parts)
         var_model_comb = sum((var / var_j) ** 2 * var_m for _, var_j, var_m in parts)
-        sigma = math.sqrt(var)
+        sigma = scale * math.sqrt(var)
         if sigma > sigma_max_mps:
             return None
-        return PseudoMeasurement(v_lost, sigma, math.sqrt(var_model_comb))
+        return PseudoMeasurement(v_lost, sigma, scale * math.sqrt(var_model_comb))
 
 
 def _regressors(E: FloatArray, v_ned_mps: FloatArray, quadratic: bool) -> FloatArray:
@@ -462,8 +544,12 @@ class AidedAxis:
         self.config = config or AidedAxisConfig()
         self.v_mps = float(v0_mps)
         self.P_mps2 = float(sigma0_mps) ** 2
+        #: dead reckoning from the hand-over, kept for the fall-back
+        self.v_dr_mps = self.v_mps
+        self.P_dr_mps2 = self.P_mps2
         self.t_s = t0_s
-        self._tau_s = 0.0  # time since the last accepted update (or the hand-over)
+        self._tau_s = 0.0  # time since the hand-over (the unestimated bias acts since then)
+        self._since_update_s = math.inf  # time since the last accepted update
         self._t_update_s: float | None = None
         self.n_accepted = 0
         self.n_rejected = 0
@@ -476,16 +562,27 @@ class AidedAxis:
             return
         cfg = self.config
         sigma_b = cfg.accel_bias_v_mps2 if self.lost_axis == 2 else cfg.accel_bias_h_mps2
-        self.v_mps += a_ned_axis_mps2 * dt_s
         # exact integral of σ_n² + 2 σ_b² τ over [τ, τ + Δt]
-        self.P_mps2 += cfg.accel_noise_mps2_rthz**2 * dt_s + sigma_b**2 * (
+        dP = cfg.accel_noise_mps2_rthz**2 * dt_s + sigma_b**2 * (
             (self._tau_s + dt_s) ** 2 - self._tau_s**2
         )
+        self.v_mps += a_ned_axis_mps2 * dt_s
+        self.P_mps2 += dP
+        self.v_dr_mps += a_ned_axis_mps2 * dt_s
+        self.P_dr_mps2 += dP
         self._tau_s += dt_s
+        self._since_update_s += dt_s
         self.t_s += dt_s
 
-    def update(self, pm: PseudoMeasurement | None) -> bool:
-        """Fuse a pseudo-measurement (None: nothing to fuse). True when accepted."""
+    def update(self, pm: PseudoMeasurement | None, model_broken: bool = False) -> bool:
+        """Fuse a pseudo-measurement (None: nothing to fuse). True when accepted.
+
+        ``model_broken`` (:attr:`DragModel.broken`: the model failed its own test during
+        the fault): aiding stops and the axis falls back to dead reckoning from the
+        hand-over (kept alongside), so a model that went wrong leaves nothing behind."""
+        if model_broken and not self.stopped:
+            self.stopped = True
+            self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
         if pm is None or self.stopped:
             return False
         cfg = self.config
@@ -509,12 +606,12 @@ class AidedAxis:
         K = self.P_mps2 / S
         self.v_mps += K * nu
         self.P_mps2 = max((1.0 - K) * self.P_mps2, var_m)
-        self._tau_s = 0.0
+        self._since_update_s = 0.0
         self.n_accepted += 1
         self._rejections_in_row = 0
         return True
 
     def state(self, aided_within_s: float = 1.0) -> AidedState:
         """(v, σ, aided): aided while an update was accepted in the last ``aided_within_s``."""
-        aided = self.n_accepted > 0 and self._tau_s <= aided_within_s and not self.stopped
+        aided = self._since_update_s <= aided_within_s and not self.stopped
         return AidedState(self.v_mps, math.sqrt(self.P_mps2), aided)
