@@ -80,6 +80,8 @@ HORIZON_S = 60.0
 #: learning before the first loss, s
 LEARN_MIN_S = 15.0
 N_LOSS_TIMES = 5
+#: the accelerometer bias is fitted over this long before the loss, s
+BIAS_WINDOW_S = 15.0
 #: σ of the handed-over value, m/s (the velocity measurement's noise; the service's default)
 SIGMA_HANDOVER_MPS = 0.1
 #: the issue's bounds, m/s
@@ -96,6 +98,7 @@ class Flight:
     source: str  # "ardupilot" | "glmav-sitl"
     t_imu_s: FloatArray  # (n,)
     a_ned_imu_mps2: FloatArray  # (n, 3): E(f + g_body), the dead-reckoning input
+    E_imu: FloatArray  # (n, 3, 3): body→NED at each IMU sample (latest ATTITUDE)
     t_vel_s: FloatArray  # (m,)
     v_meas_ned_mps: FloatArray  # (m, 3)
     f_mean_body_mps2: FloatArray  # (m, 3): f averaged over each measurement interval
@@ -149,14 +152,14 @@ def flight_from_samples(name: str, source: str, samples: Sequence[Sample]) -> Fl
             t_tr.append(s.t_boot_s)
             v_tr.append(s.v_ned_mps)
     eul_i = np.asarray(eul_imu)
-    a_ned = np.einsum(
-        "nij,nj->ni", e_exact(eul_i), gamma_body_mps2(np.asarray(f_imu), eul_i, G_MPS2)
-    )
+    E_imu = e_exact(eul_i)
+    a_ned = np.einsum("nij,nj->ni", E_imu, gamma_body_mps2(np.asarray(f_imu), eul_i, G_MPS2))
     return Flight(
         name=name,
         source=source,
         t_imu_s=np.asarray(t_imu),
         a_ned_imu_mps2=a_ned,
+        E_imu=E_imu,
         t_vel_s=np.asarray(t_vel),
         v_meas_ned_mps=np.asarray(v_meas),
         f_mean_body_mps2=np.asarray(f_mean),
@@ -175,8 +178,32 @@ def loss_times_s(fl: Flight) -> list[float]:
     return [float(x) for x in np.linspace(t0, t1, N_LOSS_TIMES)]
 
 
+def accel_bias_body_mps2(fl: Flight, t_end_s: float) -> FloatArray:
+    """The accelerometer's body-frame bias b from the BIAS_WINDOW_S before ``t_end_s``,
+    truth-free (the offline stand-in for the service's FDI fit, which the live estimator
+    subtracts): over 1 s intervals ∫(E(f + g_body)) dt − Δv_meas = (∫E dt) b, least squares
+    with a 0.5 m/s² prior on each component."""
+    t = fl.t_imu_s
+    dt = np.diff(t, prepend=t[0])
+    a_cum = np.cumsum(fl.a_ned_imu_mps2 * dt[:, None], axis=0)
+    e_cum = np.cumsum(fl.E_imu * dt[:, None, None], axis=0)
+    edges = np.arange(t_end_s - BIAS_WINDOW_S, t_end_s + 1e-9, 1.0)
+    idx = np.searchsorted(t, edges, side="right") - 1
+    idx = np.clip(idx, 0, len(t) - 1)
+    v_at = np.column_stack(
+        [np.interp(t[idx], fl.t_vel_s, fl.v_meas_ned_mps[:, i]) for i in range(3)]
+    )
+    rhs = (np.diff(a_cum[idx], axis=0) - np.diff(v_at, axis=0)).reshape(-1)
+    A = np.diff(e_cum[idx], axis=0).reshape(-1, 3)
+    prior = 1.0 / 0.5**2 * np.eye(3)
+    b: FloatArray = np.linalg.solve(A.T @ A + prior, A.T @ rhs)
+    return b
+
+
 def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[str, Any]:
-    """Dead reckoning and the aided filter on ``axis`` from ``t_loss_s`` for HORIZON_S."""
+    """Dead reckoning and the aided filter on ``axis`` from ``t_loss_s`` for HORIZON_S,
+    both on the IMU's acceleration less the bias fitted before the loss."""
+    b_body = accel_bias_body_mps2(fl, t_loss_s)
     k0 = int(np.searchsorted(fl.t_vel_s, t_loss_s))
     t0 = float(fl.t_vel_s[k0])
     v0 = float(fl.v_meas_ned_mps[k0, axis])  # the hand-over: the measurement, no truth
@@ -199,6 +226,7 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
         i_a, i_b = i_edges[n], i_edges[n + 1]
         if i_b > i_a:
             a = float(fl.a_ned_imu_mps2[i_a:i_b, axis].mean())
+            a -= float(fl.E_imu[i_a:i_b, axis, :].mean(axis=0) @ b_body)
             dr.propagate(t - t_prev, a)
             ai.propagate(t - t_prev, a)
         t_prev = t
@@ -241,6 +269,7 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
         "accepted": ai.n_accepted,
         "rejected": ai.n_rejected,
         "nees": [float(x) for x in model.nees],
+        "accel_bias_body_mps2": [float(x) for x in b_body],
         "stopped": ai.stopped,
         "err10_dr_mps": at(10.0, edr),
         "err10_aided_mps": at(10.0, eai),

@@ -124,6 +124,10 @@ class DragModelConfig:
     outlier_sigma: float = 5.0
     #: ...unless this many come in a row (the vehicle changed: learn it, σ_f grows)
     outlier_run_max: int = 25
+    #: the prior's share of the forgetting is put back every this many samples
+    prior_every: int = 25
+    #: one validation (module docstring) every this many learnt samples
+    validate_every: int = 5
     #: validation while healthy: the pseudo-measurement of each axis (one axis per learn
     #: call, in turn, made before the sample is learnt) against the measured value, whose
     #: noise is this σ, m/s
@@ -180,16 +184,21 @@ class DragModel:
         self._lam0 = np.broadcast_to(
             np.diag(1.0 / np.asarray(cfg.prior_sigma_theta) ** 2), (2, N_PARAM, N_PARAM)
         ).copy()
-        self._lam = self._lam0.copy()
-        self._eta = np.zeros((2, N_PARAM))
-        self._theta = np.zeros((2, N_PARAM))
-        self._P = np.linalg.inv(self._lam)  # Λ⁻¹ = Cov(θ), (2, 5, 5)
+        #: θ and P = Λ⁻¹ = Cov(θ) per axis as plain floats (small fixed sizes: a learn call
+        #: in Python floats costs less than ~40 numpy calls on 5-vectors); numpy views of
+        #: them are built on demand (:attr:`_theta`, :attr:`_P`)
+        self._th: list[list[float]] = [[0.0] * N_PARAM for _ in range(2)]
+        self._Pl: list[list[list[float]]] = np.linalg.inv(self._lam0).tolist()
+        self._np_cache: tuple[FloatArray, FloatArray] | None = None
+        #: Σ (1 − λ) since the prior was last put back (module docstring)
+        self._prior_due = 0.0
+        self._trust_cache: tuple[tuple[bool, bool], tuple[str, str]] | None = None
         #: exponentially weighted Σ e² σ_f²/(σ_f² + φᵀPφ) per axis, and Σ weights
-        self._res_sum = np.zeros(2)
+        self._res_sum = [0.0, 0.0]
         self._n_eff = 0.0
         #: exponentially weighted mean and mean square of r_j·v (body ground speed), per axis
-        self._s_sum = np.zeros(2)
-        self._s2_sum = np.zeros(2)
+        self._s_sum = [0.0, 0.0]
+        self._s2_sum = [0.0, 0.0]
         self._t_last_s: float | None = None
         self.n_learned = 0
         #: samples not learnt as outliers (one-step residual > outlier_sigma σ)
@@ -214,23 +223,53 @@ class DragModel:
     ) -> None:
         """One healthy sample: mean specific force over the interval (FRD, m/s²), body→NED
         rotation E (3×3) and the measured NED velocity (m/s). Non-finite input is ignored."""
-        f = np.asarray(f_body_mps2, dtype=np.float64)
-        v = np.asarray(v_ned_mps, dtype=np.float64)
-        Em = np.asarray(E, dtype=np.float64)
-        if not (np.isfinite(f).all() and np.isfinite(v).all() and np.isfinite(Em).all()):
-            return
+        f = [float(x) for x in f_body_mps2]
+        v = [float(x) for x in v_ned_mps]
+        El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
+        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El))):
+            return  # a NaN or infinity anywhere makes the sum non-finite
         cfg = self.config
-        phi = _regressors(Em, v, cfg.quadratic)  # (2, 5)
-        y = f[:2]
-        # one-step-ahead residual with the previous θ, scaled to σ_f² by its expected variance
-        var_f = self.sigma_f_mps2**2
-        e = y - np.einsum("jp,jp->j", phi, self._theta)
-        var_pred = var_f + np.einsum("jp,jpq,jq->j", phi, self._P, phi)
+        sig_f = self._sigma_f_list()
+        phis: list[list[float]] = []
+        P_phis: list[list[float]] = []
+        errs: list[float] = []
+        pPps: list[float] = []
+        var_fs: list[float] = []
+        outlier = False
+        trusted = self._n_eff >= cfg.n_eff_min
+        for j in range(2):
+            # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), r_j the j-th column of E
+            rn, re, rd = El[0][j], El[1][j], El[2][j]
+            sj = rn * v[0] + re * v[1] + rd * v[2]
+            phi = [1.0, -sj, rn, re, -sj * abs(sj) if cfg.quadratic else 0.0]
+            P = self._Pl[j]
+            P_phi = [
+                Pa[0] * phi[0] + Pa[1] * phi[1] + Pa[2] * phi[2] + Pa[3] * phi[3] + Pa[4] * phi[4]
+                for Pa in P
+            ]
+            th = self._th[j]
+            # one-step-ahead residual with the previous θ
+            e = f[j] - (th[0] + th[1] * phi[1] + th[2] * rn + th[3] * re + th[4] * phi[4])
+            pPp = (
+                phi[0] * P_phi[0]
+                + phi[1] * P_phi[1]
+                + phi[2] * P_phi[2]
+                + phi[3] * P_phi[3]
+                + phi[4] * P_phi[4]
+            )
+            var_f = sig_f[j] ** 2
+            if trusted and e * e > cfg.outlier_sigma**2 * (var_f + pPp):
+                outlier = True
+            phis.append(phi)
+            P_phis.append(P_phi)
+            errs.append(e)
+            pPps.append(pPp)
+            var_fs.append(var_f)
         self._two_row_n = 0
         self._inconsistency = 0.0
-        if self._n_eff >= cfg.n_eff_min:
-            self._validate(t_s, f, Em, v)
-        if self._n_eff >= cfg.n_eff_min and (e * e > cfg.outlier_sigma**2 * var_pred).any():
+        if trusted and self.n_learned % cfg.validate_every == 0:
+            self._validate(t_s, np.asarray(f), np.asarray(El), np.asarray(v))
+        if outlier:
             self.n_outliers += 1
             self._outlier_run += 1
             if self._outlier_run < cfg.outlier_run_max:
@@ -243,25 +282,57 @@ class DragModel:
             dt = min(max(t_s - self._t_last_s, 0.0), cfg.max_gap_s)
             lam = math.exp(-dt / cfg.tau_s)
         self._t_last_s = t_s
-        self._res_sum = lam * self._res_sum + e * e * var_f / var_pred
         self._n_eff = lam * self._n_eff + 1.0
-        s = -phi[:, _K]  # r_j·v
-        self._s_sum = lam * self._s_sum + s
-        self._s2_sum = lam * self._s2_sum + s * s
-        # information update weighted by 1/σ_f², forgetting towards the prior (θ₀ = 0, η₀ = 0)
-        wt = (1.0 / var_f)[:, None]
-        self._lam = (
-            lam * self._lam + (1.0 - lam) * self._lam0 + (phi * wt)[:, :, None] * phi[:, None, :]
-        )
-        self._eta = lam * self._eta + phi * (y[:, None] * wt)
-        self._P = np.linalg.inv(self._lam)
-        self._theta = np.einsum("jpq,jq->jp", self._P, self._eta)
+        inv_l = 1.0 / lam
+        for j in range(2):
+            e, var_f, pPp, P_phi = errs[j], var_fs[j], pPps[j], P_phis[j]
+            # σ_f: residual scaled to σ_f² by its expected variance σ_f² + φᵀPφ
+            self._res_sum[j] = lam * self._res_sum[j] + e * e * var_f / (var_f + pPp)
+            sj = -phis[j][1]
+            self._s_sum[j] = lam * self._s_sum[j] + sj
+            self._s2_sum[j] = lam * self._s2_sum[j] + sj * sj
+            # Λ ← λΛ + (1 − λ)Λ₀ + φφᵀ/σ_f² in covariance form: forgetting P/λ and the
+            # rank-one (Sherman-Morrison, RLS) update every sample; the prior's (1 − λ)Λ₀
+            # collected and put back exactly every ``prior_every`` samples
+            denom = var_f + pPp * inv_l
+            g = inv_l / denom  # gain K = g · Pφ
+            ge = g * e
+            self._th[j] = [t + ge * pa for t, pa in zip(self._th[j], P_phi, strict=True)]
+            c = inv_l * inv_l / denom
+            p0, p1, p2, p3, p4 = P_phi
+            self._Pl[j] = [
+                [
+                    Pr[0] * inv_l - ca * p0,
+                    Pr[1] * inv_l - ca * p1,
+                    Pr[2] * inv_l - ca * p2,
+                    Pr[3] * inv_l - ca * p3,
+                    Pr[4] * inv_l - ca * p4,
+                ]
+                for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+            ]
+        self._prior_due = lam * self._prior_due + (1.0 - lam)
         self.n_learned += 1
+        self._np_cache = None
+        self._trust_cache = None
+        if self.n_learned % cfg.prior_every == 0:
+            self._put_prior_back()
+
+    def _put_prior_back(self) -> None:
+        """Λ += w Λ₀ (w the forgetting collected since the last time); θ = Λ⁻¹η with η
+        unchanged (θ₀ = 0): θ ← Λ_new⁻¹ Λ_old θ."""
+        lam_old = np.linalg.inv(self._P)
+        lam_old = 0.5 * (lam_old + np.swapaxes(lam_old, 1, 2))
+        eta = np.einsum("jpq,jq->jp", lam_old, self._theta)
+        P = np.linalg.inv(lam_old + self._prior_due * self._lam0)
+        self._Pl = P.tolist()
+        self._th = np.einsum("jpq,jq->jp", P, eta).tolist()
+        self._prior_due = 0.0
+        self._np_cache = None
 
     def _validate(self, t_s: float, f: FloatArray, E: FloatArray, v: FloatArray) -> None:
         """One axis in turn: how far the pseudo-measurement is from the measurement."""
         cfg = self.config
-        axis = self.n_learned % 3
+        axis = (self.n_learned // cfg.validate_every) % 3
         pm = self.pseudo_measurement(f, E, v, axis, validated=False)
         if pm is None:
             return
@@ -271,6 +342,19 @@ class DragModel:
         z2 = (pm.v_mps - v[axis]) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
         self._nees_sum[axis] = lam * self._nees_sum[axis] + z2
         self._nees_n[axis] = lam * self._nees_n[axis] + 1.0
+
+    def _arrays(self) -> tuple[FloatArray, FloatArray]:
+        if self._np_cache is None:
+            self._np_cache = (np.array(self._th), np.array(self._Pl))
+        return self._np_cache
+
+    @property
+    def _theta(self) -> FloatArray:
+        return self._arrays()[0]
+
+    @property
+    def _P(self) -> FloatArray:
+        return self._arrays()[1]
 
     @property
     def broken(self) -> bool:
@@ -291,13 +375,22 @@ class DragModel:
         """θ per body axis (2, 5): (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m)."""
         return self._theta.copy()
 
+    def _sigma_f_list(self) -> list[float]:
+        cfg = self.config
+        if self._n_eff < 10.0:
+            return [cfg.sigma_f_initial_mps2] * 2
+        n = self._n_eff
+        return [max(math.sqrt(r / n), cfg.sigma_f_floor_mps2) for r in self._res_sum]
+
     @property
     def sigma_f_mps2(self) -> FloatArray:
         """Residual spread σ_f per body axis (x, y), m/s²."""
         cfg = self.config
         if self._n_eff < 10.0:
             return np.full(2, cfg.sigma_f_initial_mps2)
-        out: FloatArray = np.maximum(np.sqrt(self._res_sum / self._n_eff), cfg.sigma_f_floor_mps2)
+        out: FloatArray = np.maximum(
+            np.sqrt(np.asarray(self._res_sum) / self._n_eff), cfg.sigma_f_floor_mps2
+        )
         return out
 
     @property
@@ -321,8 +414,8 @@ class DragModel:
         """Weighted std of the body-frame ground speed r_j·v per axis, m/s."""
         if self._n_eff <= 0.0:
             return np.zeros(2)
-        m = self._s_sum / self._n_eff
-        out: FloatArray = np.sqrt(np.maximum(self._s2_sum / self._n_eff - m * m, 0.0))
+        m = np.asarray(self._s_sum) / self._n_eff
+        out: FloatArray = np.sqrt(np.maximum(np.asarray(self._s2_sum) / self._n_eff - m * m, 0.0))
         return out
 
     def wind_ne_mps(self) -> tuple[float, float, float] | None:
@@ -345,26 +438,58 @@ class DragModel:
 
     def trusted_rows(self) -> tuple[NDArray[np.bool_], str]:
         """Which body rows (x, y) pass the model's own test, and why the others do not."""
+        ok, failed = self._row_tests()
+        return np.array(ok), self._reasons(failed)
+
+    def _row_tests(self) -> tuple[tuple[bool, bool], tuple[str, str]]:
+        """Per row: passed, and the name of the first failed test ("" when passed);
+        plain floats, cached until the next learnt sample."""
+        if self._trust_cache is not None:
+            return self._trust_cache
         cfg = self.config
         if self._n_eff < cfg.n_eff_min:
-            return np.zeros(2, dtype=bool), f"n_eff {self._n_eff:.0f} < {cfg.n_eff_min:.0f}"
+            out = ((False, False), ("n_eff", "n_eff"))
+        else:
+            n = self._n_eff
+            floor2 = cfg.sigma_f_floor_mps2**2
+            ok: list[bool] = []
+            failed: list[str] = []
+            for j in range(2):
+                m = self._s_sum[j] / n
+                spread2 = self._s2_sum[j] / n - m * m
+                var_f = max(self._res_sum[j] / n, floor2)
+                k = self._th[j][_K]
+                var_k = self._Pl[j][_K][_K]
+                if spread2 < cfg.speed_spread_min_mps**2:
+                    failed.append("spread")
+                elif var_f > cfg.sigma_f_max_mps2**2:
+                    failed.append("residual")
+                elif k < cfg.k_z_min * math.sqrt(var_k):
+                    failed.append("k")
+                else:
+                    failed.append("")
+                ok.append(not failed[-1])
+            out = ((ok[0], ok[1]), (failed[0], failed[1]))
+        self._trust_cache = out
+        return out
+
+    def _reasons(self, failed: tuple[str, str]) -> str:
+        cfg = self.config
+        if failed[0] == "n_eff":
+            return f"n_eff {self._n_eff:.0f} < {cfg.n_eff_min:.0f}"
         spread = self.speed_spread_mps
         sig_f = self.sigma_f_mps2
         k = self._theta[:, _K]
         z = k / np.sqrt(self._P[:, _K, _K])
-        ok = np.ones(2, dtype=bool)
         why: list[str] = []
         for j, name in enumerate("xy"):
-            if spread[j] < cfg.speed_spread_min_mps:
+            if failed[j] == "spread":
                 why.append(f"{name}: speed spread {spread[j]:.2f} m/s")
-            elif sig_f[j] > cfg.sigma_f_max_mps2:
+            elif failed[j] == "residual":
                 why.append(f"{name}: residual spread {sig_f[j]:.3f} m/s²")
-            elif z[j] < cfg.k_z_min:
+            elif failed[j] == "k":
                 why.append(f"{name}: k {k[j]:.3f} 1/s not clearly > 0 (z {z[j]:.1f})")
-            else:
-                continue
-            ok[j] = False
-        return ok, "; ".join(why) if why else "ok"
+        return "; ".join(why) if why else "ok"
 
     def trust(self) -> Trust:
         """The model's own test (module docstring): trusted when at least one body row
@@ -409,9 +534,9 @@ class DragModel:
             scale = math.sqrt(max(1.0, float(nees)))
         rows = Em[:, :2].T  # r_j = j-th column of E, (2 body axes, 3 NED)
         r_lost = rows[:, lost_axis]
-        use, _ = self.trusted_rows()
-        use &= np.abs(r_lost) >= row_min
-        if not use.any():
+        ok, _ = self._row_tests()
+        use = [ok[j] and abs(float(r_lost[j])) >= row_min for j in range(2)]
+        if not any(use):
             return None
         th = self._theta
         sig_f = self.sigma_f_mps2
