@@ -385,7 +385,14 @@ def learn_cost_s() -> dict[str, float]:
     f = np.array([0.1, -0.2, -9.8])
     v = np.array([1.0, 2.0, 0.0])
     pm = time_per_call_s(lambda: model.pseudo_measurement(f, E, v, 0), number=500)
-    return {"learn_s": learn["median_s"], "pseudo_measurement_s": pm["median_s"]}
+    # baseline in the same run: one body→NED rotation, which the caller computes anyway
+    eul = np.array([0.05, -0.1, 0.7])
+    base = time_per_call_s(lambda: e_exact(eul), number=500)
+    return {
+        "learn_s": learn["median_s"],
+        "pseudo_measurement_s": pm["median_s"],
+        "baseline_e_exact_s": base["median_s"],
+    }
 
 
 def run(quick: bool = False) -> dict[str, Any]:
@@ -514,7 +521,8 @@ def to_markdown(result: dict[str, Any]) -> str:
         format_table(srows),
         "",
         f"Cost: `DragModel.learn` {cost['learn_s'] * 1e6:.1f} µs per call, "
-        f"`pseudo_measurement` {cost['pseudo_measurement_s'] * 1e6:.1f} µs (medians). "
+        f"`pseudo_measurement` {cost['pseudo_measurement_s'] * 1e6:.1f} µs, baseline one "
+        f"`e_exact` {cost['baseline_e_exact_s'] * 1e6:.1f} µs (medians, same run). "
         f"Wall time {result['wall_s']['total']:.0f} s ({result['wall_s']['data']:.0f} s reading "
         "and simulating).",
         "",

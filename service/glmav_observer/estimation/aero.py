@@ -3,58 +3,79 @@
 A rotorcraft's accelerometer feels the horizontal drag of the air flowing past it. In body
 axes (FRD), per horizontal body axis j ∈ {x, y}:
 
-    f_j = c_j − k_j · u_j,        u = Eᵀ (v_ned − w_ned),   w_ned = (w_n, w_e, 0)
+    f_j = c_j − k_j u_j − q_j s_j|s_j|,   u = Eᵀ(v_ned − w_ned),  s = Eᵀ v_ned,  w_d = 0
 
 with ``f`` the specific force (m/s², what the accelerometer reads), ``u`` the body-frame
-airspeed (m/s), ``E`` the body→NED rotation (13) (:func:`~.observer.e_exact`), ``k_j`` (1/s)
-the linear drag coefficient, ``c_j`` (m/s²) a constant (accelerometer bias, trim force),
-``w`` the wind. With ``r_j`` the j-th row of Eᵀ (= the j-th column of E, a vector over
-n, e, d) this is linear in the parameters θ_j = (c_j, k_j, k_j·w_n, k_j·w_e):
+airspeed and ``s`` the body-frame ground speed (m/s), ``E`` the body→NED rotation (13)
+(:func:`~.observer.e_exact`), ``k_j`` (1/s) the linear and ``q_j`` (1/m) the quadratic drag
+coefficient, ``c_j`` (m/s²) a constant (accelerometer bias, trim force), ``w`` the wind.
+With ``r_j`` the j-th row of Eᵀ (= the j-th column of E, a vector over n, e, d) this is
+linear in θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j):
 
-    f_j = φ_jᵀ θ_j,   φ_j = (1, −r_j·v_ned, r_j,n, r_j,e)                         (A1)
+    f_j = φ_jᵀ θ_j,   φ_j = (1, −r_j·v, r_j,n, r_j,e, −s_j|s_j|),  s_j = r_j·v       (A1)
+
+The quadratic term is taken in the ground speed, not the airspeed (A2: exact without wind;
+with wind its cross term 2q·w·u is absorbed by the linear terms): taking it in the
+estimated airspeed makes the regression depend on its own output, which diverged on
+ArduPilot's SITL quad (a 10 m/s phantom wind within 20 s). ArduPilot's quad needs it: on
+h_quad_gps_glitch a linear-only batch fit leaves 0.16 m/s² of residual on x, with
+q ≈ 0.035 1/m 0.023 m/s².
 
 **Per-axis fit, wind reconciled afterwards.** Each body axis is fitted on its own (two
-4-parameter linear least-squares problems). Fitting the wind jointly would make the model
+5-parameter linear least-squares problems). Fitting the wind jointly would make the model
 nonlinear (the products k_j·w) for no gain in what is used: the pseudo-measurement needs
-only the prediction φ_jᵀθ_j, which each axis's fit gives with its own covariance. When the
-heading barely changes, c_j and k_j·w are nearly collinear; the fit's covariance then stays
-large along that direction but the prediction at the current attitude stays sharp (its
-variance φᵀPφ is what the σ uses), so nothing is lost. The wind is reported (for display)
-as the precision-weighted mean of the two axes' (k_j·w)/k_j (:meth:`DragModel.wind_ne_mps`).
+only the prediction φ_jᵀθ_j, which each axis's fit gives with its covariance. At a constant
+heading c_j and k_j·w enter through the same regressor; the prior on c (σ 0.5 m/s², a
+calibrated MEMS bias plus trim, :class:`DragModelConfig`) splits them towards the wind,
+which rotates with the heading; the covariance carries what the data leave open, and the
+prediction's variance φᵀPφ is what the σ uses. The wind is reported (for display) as the
+precision-weighted mean of the two axes' (k_j·w)/k_j (:meth:`DragModel.wind_ne_mps`).
 
 **Learning** (:meth:`DragModel.learn`, while all three axes are healthy, at the velocity
 measurement rate, ``f`` averaged by the caller over the interval): exponentially weighted
-least squares in information form with forgetting *towards the prior* (time constant
-``tau_s``, default 90 s):
+Bayesian least squares with forgetting *towards the prior* (time constant ``tau_s``,
+default 90 s), each sample weighted by 1/σ_f²:
 
-    Λ ← λ Λ + (1 − λ) Λ₀ + φ φᵀ,   η ← λ η + (1 − λ) Λ₀ θ₀ + φ f,   λ = exp(−Δt / τ)
+    Λ ← λ Λ + (1 − λ) Λ₀ + φ φᵀ/σ_f²,   η ← λ η + φ f/σ_f²,   λ = exp(−Δt/τ),  θ = Λ⁻¹η
 
-so the information never decays below the weak prior Λ₀ (no covariance wind-up when the
-vehicle hovers) and θ = Λ⁻¹η. The residual spread σ_f,j is the exponentially weighted
-RMS of the one-step-ahead prediction residual e = f − φᵀθ_prev, normalised by
-(1 + φᵀΛ⁻¹φ) (its expected inflation), and the coefficient covariance is σ_f² Λ⁻¹.
+so the information never decays below the weak prior Λ₀ (no covariance wind-up while the
+vehicle hovers) and Cov(θ) = Λ⁻¹. It runs in covariance form (RLS: P/λ and a rank-one
+update per sample, in plain floats; the prior's share put back exactly every 25 samples).
+The residual spread σ_f,j is the exponentially weighted RMS of the one-step-ahead residual
+e = f − φᵀθ_prev scaled by σ_f²/(σ_f² + φᵀPφ), floored at 0.02 m/s². A sample whose
+residual exceeds 5σ is not learnt (a GPS glitch) unless 25 come in a row.
 
-**Its own test** (:meth:`DragModel.trust`): enough data (effective sample count), enough
-excitation (the spread of the body-frame ground speed r_j·v, equal to the airspeed's under
-a steady wind), k_j clearly positive (k_j / σ(k_j) ≥ ``k_z_min``) and a residual spread
-small enough to be useful (σ_f,j ≤ ``sigma_f_max_mps2``). Untrusted → no pseudo-measurement.
+**Its own tests.** Per body row (:meth:`DragModel.trusted_rows`): enough data (effective
+sample count), enough excitation (spread of the body-frame speed r_j·v ≥ 0.3 m/s), a
+residual spread small enough to be useful (σ_f,j ≤ 0.15 m/s²) and k_j clearly positive
+(k_j ≥ 5σ(k_j)); only passing rows are used. Per earth axis (validation): while healthy,
+every 5th sample the pseudo-measurement of one axis in turn is compared with its
+measurement before the sample is learnt; an axis is aided only after ≥ 10 (effective)
+validations, with σ inflated by √NEES when the normalised squared error exceeds 1 and
+refused above 25. During a fault: when both rows see the lost axis their two values must
+agree within 3σ; if they disagree in > 20 % of recent calls the model is
+:attr:`DragModel.broken` (a wind change, another airframe) until it learns again.
 
 **Pseudo-measurement** (:meth:`DragModel.pseudo_measurement`): with the two measured earth
-axes known, each body row (A1) is one equation in the lost axis L:
+axes known, each passing body row (A1) gives s_j (the root of the quadratic on the sign
+branch of the linear solution) and so the lost axis L:
 
-    v_L,j = (c_j + r_j,n k_j w_n + r_j,e k_j w_e − k_j Σ_{i≠L} r_j,i v_i − f_j) / (k_j r_j,L)
+    v_L,j = (s_j − Σ_{i≠L} r_j,i v_i) / r_j,L
 
-with variance σ_f,j²(1 + φ_jᵀΛ_j⁻¹φ_j)/(k_j r_j,L)² (+ the measured axes' noise through
-k_j r_j,i); the two rows are combined by inverse-variance weighting. None when the model
-is untrusted or the lost axis is not observable at this attitude (max_j |r_j,L| <
-``row_min``: a level vehicle cannot see d through horizontal drag) or the result's σ
+with variance (σ_f,j² + φ_jᵀP_jφ_j + the measured axes' noise)/((k_j + 2q_j|s_j|) r_j,L)²;
+the two rows are combined by inverse-variance weighting. None when no row passes, the axis
+is not observable at this attitude (|r_j,L| < ``row_min``: a level vehicle cannot see d
+through horizontal drag), the axis is not in ``aided_axes`` (d is not, by default: the
+benchmark's numbers in ``docs/benchmarks/aero.md``), its validation has not passed, or σ
 exceeds ``sigma_max_mps``.
 
 **The aided axis** (:class:`AidedAxis`), a one-state Kalman filter on the lost axis's
 velocity (m/s): :meth:`AidedAxis.propagate` at the IMU rate with the earth-frame
-acceleration of that axis (a_L = (E Γ)_L, Γ = f + g_body, (12)); :meth:`AidedAxis.update`
-at the measurement rate with the pseudo-measurement, gated at 5σ. See its docstring for
-the noise model. It starts from the hand-over value and σ.
+acceleration of that axis (a_L = (E Γ)_L, Γ = f + g_body, (12), less the accelerometer bias
+the estimator compensates); :meth:`AidedAxis.update` at the measurement rate with the
+pseudo-measurement, gated at 5σ. It starts from the hand-over value and σ and keeps the
+plain dead reckoning alongside: when the model declares itself broken the axis falls back
+to it. See its docstring for the noise model.
 
 Use from the estimator (per vehicle)::
 
@@ -62,14 +83,14 @@ Use from the estimator (per vehicle)::
     # every velocity measurement while n, e, d are all healthy:
     model.learn(t_s, f_mean_body_mps2, E, v_ned_mps)
     # at the fault on axis L (0 n, 1 e, 2 d):
-    axis = AidedAxis(L, v0_mps=v_meas[L], sigma0_mps=sigma_meas)
+    axis = AidedAxis(L, v0_mps=v_meas[L], sigma0_mps=sigma_meas, t0_s=t_s)
     # every IMU sample:        axis.propagate(dt_s, a_ned_mps2[L])
     # every velocity sample:   pm = model.pseudo_measurement(f_mean, E, v_meas, L)
-    #                          axis.update(pm)          # pm may be None
+    #                          axis.update(pm, model.broken)        # pm may be None
     # report axis.state() -> AidedState(v_mps, sigma_mps, aided)
 
-Cost: one ``learn`` is a handful of 2×4 / 2×4×4 numpy operations and one batched 4×4
-solve (``benchmarks/aero.py`` measures it).
+Cost (``benchmarks/aero.py``, same run as a baseline ``e_exact``): ``learn`` ~20 list
+operations on 5-vectors per body axis plus a pseudo-measurement every 5th call.
 """
 
 from __future__ import annotations
@@ -726,7 +747,10 @@ class AidedAxis:
             self.n_rejected += 1
             self._rejections_in_row += 1
             if self._rejections_in_row >= cfg.max_rejections:
+                # the pseudo-measurements and the estimate parted: one of them went wrong
+                # and the filter cannot tell which; dead reckoning is the safe side
                 self.stopped = True
+                self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
             return False
         K = self.P_mps2 / S
         self.v_mps += K * nu

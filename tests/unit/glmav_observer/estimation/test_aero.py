@@ -266,3 +266,18 @@ def test_bad_input() -> None:
         model.pseudo_measurement(np.zeros(3), E, np.zeros(3), 3)
     with pytest.raises(ValueError, match="lost_axis"):
         AidedAxis(5, 0.0, 0.1)
+
+
+def test_rejections_in_a_row_fall_back_to_dead_reckoning() -> None:
+    ax = AidedAxis(0, 0.0, 0.1, 0.0, AidedAxisConfig(max_rejections=5))
+    ax.propagate(0.04, 1.0)
+    assert ax.update(PseudoMeasurement(0.05, 0.05, 0.0))  # pulls v off the dead reckoning
+    assert ax.v_mps != ax.v_dr_mps
+    for _ in range(5):
+        ax.propagate(0.04, 1.0)
+        assert not ax.update(PseudoMeasurement(-10.0, 0.05, 0.0))
+    # five rejections in a row: stopped, back on the dead reckoning (v0 + Σ a·dt)
+    assert ax.stopped and not ax.state().aided
+    assert ax.v_mps == pytest.approx(0.24)
+    assert ax.v_mps == ax.v_dr_mps
+    assert not ax.update(PseudoMeasurement(0.24, 0.05, 0.0))  # stopped for good
