@@ -298,8 +298,10 @@ def _rms_between(t: FloatArray, e: FloatArray, a: float, b: float) -> float:
     return float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else math.nan
 
 
-def run_flight(fl: Flight) -> list[dict[str, Any]]:
-    """All cases of a flight: the model learns once up to each loss time (snapshots)."""
+def run_flight(fl: Flight, *, d_forced: bool = False) -> list[dict[str, Any]]:
+    """All cases of a flight: the model learns once up to each loss time (snapshots).
+    ``d_forced``: also the d cases with d aided (off by default, ``aided_axes``), marked
+    ``"variant": "d aided"``."""
     model = DragModel()
     cases: list[dict[str, Any]] = []
     k = 0
@@ -311,7 +313,11 @@ def run_flight(fl: Flight) -> list[dict[str, Any]]:
             k += 1
         snap = copy.deepcopy(model)
         for axis in range(3):
-            cases.append(run_case(fl, snap, t_loss, axis))
+            cases.append(run_case(fl, snap, t_loss, axis) | {"variant": "default"})
+        if d_forced:
+            snap_d = copy.deepcopy(model)
+            snap_d.config = dataclasses.replace(model.config, aided_axes=(0, 1, 2))
+            cases.append(run_case(fl, snap_d, t_loss, 2) | {"variant": "d aided"})
     return cases
 
 
@@ -406,12 +412,15 @@ def run(quick: bool = False) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="aero-") as tmp:
         flights += [sim_flight(s, p, 1, Path(tmp)) for s, p in sim]
     t_data = time.perf_counter() - t_start
-    cases = [c for fl in flights for c in run_flight(fl)]
+    all_cases = [c for fl in flights for c in run_flight(fl, d_forced=True)]
+    cases = [c for c in all_cases if c["variant"] == "default"]
+    d_forced = [c for c in all_cases if c["variant"] == "d aided"]
     horiz = [c for c in cases if c["axis"] != "d"]
     groups: dict[str, list[dict[str, Any]]] = {
         "all": cases,
         "horizontal (n, e)": horiz,
         "vertical (d)": [c for c in cases if c["axis"] == "d"],
+        "vertical (d), aiding forced on (not the default)": d_forced,
         "corpus (n, e)": [c for c in horiz if c["source"] == "ardupilot"],
         "corpus (n, e), aided > 50 % of the time": [
             c for c in horiz if c["source"] == "ardupilot" and c["aided_fraction"] > 0.5
@@ -462,6 +471,7 @@ def run(quick: bool = False) -> dict[str, Any]:
         "goals": goals,
         "summary": summary,
         "rows": cases,
+        "rows_d_aided": d_forced,
         "cost": cost,
         "flights": [
             {

@@ -159,9 +159,11 @@ class DragModelConfig:
     #: inflated more than √25 = 5 times); between 1 and this, σ is inflated by √NEES
     nees_max: float = 25.0
     #: NED axes that may be aided (0 n, 1 e, 2 d). d is off by default: through the body
-    #: x/y rows it is seen only as −sinθ·v_d, an extrapolation the learning data cannot
-    #: check (v_d ≈ 0 in cruise) and which fails on ArduPilot's SITL (aided d errors up to
-    #: 1.6 m/s where dead reckoning stays ≤ 0.1 m/s over 60 s: docs/benchmarks/aero.md)
+    #: x/y rows it is seen only as −sinθ·v_d, an extrapolation the learning data barely
+    #: check (v_d ≈ 0 in cruise), and on ArduPilot's SITL quads forcing it on made d worse
+    #: than dead reckoning in 5 of 40 cases (worst 60 s RMS 1.68 vs 0.16 m/s) and better in
+    #: none, where dead reckoning on d holds 0.37 m/s median at 60 s
+    #: (docs/benchmarks/aero.md, "aiding forced on")
     aided_axes: tuple[int, ...] = (0, 1)
     #: both rows used and their two values of the lost axis differ by more than this many
     #: σ: the model no longer fits (a wind change during the fault): no pseudo-measurement
