@@ -540,39 +540,38 @@ class DragModel:
         while healthy passed, σ inflated by √NEES when that is above 1."""
         if lost_axis not in (0, 1, 2):
             raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
-        f = np.asarray(f_body_mps2, dtype=np.float64)
-        v = np.array(v_ned_known_mps, dtype=np.float64)
-        Em = np.asarray(E, dtype=np.float64)
+        f = [float(x) for x in f_body_mps2]
+        v = [float(x) for x in v_ned_known_mps]
         v[lost_axis] = 0.0
-        if not (np.isfinite(f).all() and np.isfinite(v).all() and np.isfinite(Em).all()):
+        El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
+        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El))):
             return None
+        cfg = self.config
         scale = 1.0
         if validated:
-            cfg = self.config
             if lost_axis not in cfg.aided_axes:
                 return None
-            n, nees = self._nees_n[lost_axis], self.nees[lost_axis]
-            if n < cfg.nees_n_min or not nees <= cfg.nees_max:
+            n = float(self._nees_n[lost_axis])
+            if n < cfg.nees_n_min:
                 return None
-            scale = math.sqrt(max(1.0, float(nees)))
-        rows = Em[:, :2].T  # r_j = j-th column of E, (2 body axes, 3 NED)
-        r_lost = rows[:, lost_axis]
+            nees = float(self._nees_sum[lost_axis]) / n
+            if not nees <= cfg.nees_max:
+                return None
+            scale = math.sqrt(max(1.0, nees))
         ok, _ = self._row_tests()
-        use = [ok[j] and abs(float(r_lost[j])) >= row_min for j in range(2)]
-        if not any(use):
-            return None
-        th = self._theta
-        sig_f = self.sigma_f_mps2
+        sig_f = self._sigma_f_list()
         known = [i for i in range(3) if i != lost_axis]
         parts: list[tuple[float, float, float]] = []
         for j in range(2):
-            if not use[j]:
+            r = (El[0][j], El[1][j], El[2][j])  # r_j: the j-th column of E
+            r_lost = r[lost_axis]
+            if not ok[j] or abs(r_lost) < row_min:
                 continue
-            c, k, kwn, kwe, q = (float(x) for x in th[j])
+            c, k, kwn, kwe, q = self._th[j]
             # (A2): f_j = a_j − k s_j − q s_j|s_j| with a_j = c + r_n k·w_n + r_e k·w_e;
             # solve for s_j = r_j·v (monotone while k + 2q|s| > 0): the root of the
             # quadratic on the sign branch of the linear solution
-            a_j = c + rows[j, 0] * kwn + rows[j, 1] * kwe - float(f[j])
+            a_j = c + r[0] * kwn + r[1] * kwe - f[j]
             s_j = a_j / k
             if q != 0.0:
                 sg = 1.0 if s_j >= 0.0 else -1.0
@@ -582,18 +581,21 @@ class DragModel:
             slope = k + 2.0 * q * abs(s_j)  # −∂f_j/∂s_j
             if slope <= 0.0:
                 continue
-            g = slope * r_lost[j]  # −∂f_j/∂v_L
-            v_j = (s_j - sum(rows[j, i] * v[i] for i in known)) / r_lost[j]
-            phi = np.array((1.0, -s_j, rows[j, 0], rows[j, 1], -s_j * abs(s_j)))
-            var_model = float(phi @ self._P[j] @ phi) / g**2
+            g2 = (slope * r_lost) ** 2  # (∂f_j/∂v_L)²
+            v_j = (s_j - sum(r[i] * v[i] for i in known)) / r_lost
+            phi = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
+            P = self._Pl[j]
+            var_model = (
+                sum(phi[a] * sum(P[a][b] * phi[b] for b in range(N_PARAM)) for a in range(N_PARAM))
+                / g2
+            )
             var_white = (
-                sig_f[j] ** 2 + sum((slope * rows[j, i] * sigma_v_known_mps) ** 2 for i in known)
-            ) / g**2
+                sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
+            ) / g2
             parts.append((v_j, var_white + var_model, var_model))
         if not parts:
             return None
         if len(parts) == 2:
-            cfg = self.config
             (v_x, var_x, _), (v_y, var_y, _) = parts
             bad = (v_x - v_y) ** 2 > cfg.row_consistency_sigma**2 * (var_x + var_y)
             if validated:
@@ -611,20 +613,6 @@ class DragModel:
         if sigma > sigma_max_mps:
             return None
         return PseudoMeasurement(v_lost, sigma, scale * math.sqrt(var_model_comb))
-
-
-def _regressors(E: FloatArray, v_ned_mps: FloatArray, quadratic: bool) -> FloatArray:
-    """φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), s_j = r_j·v, for j = x, y ((A1), (A2));
-    r_j the j-th column of E. Shape (2, 5)."""
-    rows = E[:, :2].T  # (2, 3)
-    s = rows @ v_ned_mps
-    phi = np.empty((2, N_PARAM))
-    phi[:, 0] = 1.0
-    phi[:, 1] = -s
-    phi[:, 2] = rows[:, 0]
-    phi[:, 3] = rows[:, 1]
-    phi[:, 4] = -s * np.abs(s) if quadratic else 0.0
-    return phi
 
 
 # ---------------------------------------------------------------------- the aided axis
