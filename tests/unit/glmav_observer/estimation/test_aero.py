@@ -183,13 +183,13 @@ def _run_loss(
     t0_s: float = 120.0,
     horizon_s: float = 60.0,
     **kw: object,
-) -> tuple[F, F, F, AidedAxis]:
-    """Lose ``axis`` at t0: (times, |aided error|, |DR error|, the filter), 25 Hz."""
+) -> tuple[F, F, F, F, AidedAxis]:
+    """Lose ``axis`` at t0: (times, |aided error|, |DR error|, aided σ, the filter), 25 Hz."""
     t = np.arange(t0_s, t0_s + horizon_s, 1.0 / RATE_HZ)
     f, E, v, _ = flight(t, seed=3, **kw)  # type: ignore[arg-type]
     ai = AidedAxis(axis, float(v[0, axis]), 0.1, float(t[0]))
     dr = AidedAxis(axis, float(v[0, axis]), 0.1, float(t[0]))
-    e_ai, e_dr = [], []
+    e_ai, e_dr, s_ai = [], [], []
     for i in range(1, len(t)):
         dt = float(t[i] - t[i - 1])
         # the IMU's earth-frame acceleration: exact mean over the interval plus the bias
@@ -199,13 +199,14 @@ def _run_loss(
         ai.update(model.pseudo_measurement(f[i], E[i], v[i], axis), model.broken)
         e_ai.append(abs(ai.v_mps - v[i, axis]))
         e_dr.append(abs(dr.v_mps - v[i, axis]))
-    return t[1:] - t0_s, np.asarray(e_ai), np.asarray(e_dr), ai
+        s_ai.append(ai.state().sigma_mps)
+    return t[1:] - t0_s, np.asarray(e_ai), np.asarray(e_dr), np.asarray(s_ai), ai
 
 
 def test_aided_axis_bounded_where_dead_reckoning_drifts() -> None:
     model = learnt()
     for axis in (0, 1):
-        tt, e_ai, e_dr, ai = _run_loss(model, axis=axis, accel_bias_mps2=0.1)
+        tt, e_ai, e_dr, sigma, ai = _run_loss(model, axis=axis, accel_bias_mps2=0.1)
         # dead reckoning with a 0.1 m/s² bias: 0.1 · 60 = 6 m/s after a minute
         assert e_dr[-1] == pytest.approx(6.0, abs=0.05)
         # aided: the pseudo-measurement (σ ≈ 0.1 m/s) holds the axis; issue 13's bounds
@@ -216,14 +217,14 @@ def test_aided_axis_bounded_where_dead_reckoning_drifts() -> None:
         assert e_ai[-1] < 0.3
         st = ai.state()
         assert st.aided and ai.n_rejected == 0
-        # σ covers: the filter's σ at the end is ≥ its error / 2
-        assert st.sigma_mps * 2.0 >= e_ai[-1]
+        # σ covers the error (issue 13: 95 % of the time within 2σ; measured: always)
+        assert np.mean(e_ai <= 2.0 * sigma) >= 0.95
 
 
 def test_wrong_model_is_gated_and_never_worse_than_dead_reckoning() -> None:
     model = learnt()
     # the vehicle changed (a payload, another airframe): its drag doubled after learning
-    _, e_ai, e_dr, ai = _run_loss(model, axis=0, accel_bias_mps2=0.02, k=(0.8, 0.7))
+    _, e_ai, e_dr, _, ai = _run_loss(model, axis=0, accel_bias_mps2=0.02, k=(0.8, 0.7))
     # the pseudo-measurement drifts off with the airspeed (by u·Δk/k): the two body rows
     # stop agreeing, the model declares itself broken and the axis falls back to dead
     # reckoning from the hand-over
