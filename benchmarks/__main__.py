@@ -34,6 +34,7 @@ MODULES: tuple[str, ...] = (
     "accuracy",
     "corpus",
     "faults_accuracy",
+    "aero",
     "fuzz_ingest",
     "soak",
 )

@@ -1,0 +1,756 @@
+"""Self-calibrating aerodynamic aiding of a lost earth velocity axis (issue 13).
+
+A rotorcraft's accelerometer feels the horizontal drag of the air flowing past it. In body
+axes (FRD), per horizontal body axis j ∈ {x, y}:
+
+    f_j = c_j − k_j u_j − q_j s_j|s_j|,   u = Eᵀ(v_ned − w_ned),  s = Eᵀ v_ned,  w_d = 0
+
+with ``f`` the specific force (m/s², what the accelerometer reads), ``u`` the body-frame
+airspeed and ``s`` the body-frame ground speed (m/s), ``E`` the body→NED rotation (13)
+(:func:`~.observer.e_exact`), ``k_j`` (1/s) the linear and ``q_j`` (1/m) the quadratic drag
+coefficient, ``c_j`` (m/s²) a constant (accelerometer bias, trim force), ``w`` the wind.
+With ``r_j`` the j-th row of Eᵀ (= the j-th column of E, a vector over n, e, d) this is
+linear in θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j):
+
+    f_j = φ_jᵀ θ_j,   φ_j = (1, −r_j·v, r_j,n, r_j,e, −s_j|s_j|),  s_j = r_j·v       (A1)
+
+The quadratic term is taken in the ground speed, not the airspeed (A2: exact without wind;
+with wind its cross term 2q·w·u is absorbed by the linear terms): taking it in the
+estimated airspeed makes the regression depend on its own output, which diverged on
+ArduPilot's SITL quad (a 10 m/s phantom wind within 20 s). ArduPilot's quad needs it: on
+h_quad_gps_glitch a linear-only batch fit leaves 0.16 m/s² of residual on x, with
+q ≈ 0.035 1/m 0.023 m/s².
+
+**Per-axis fit, wind reconciled afterwards.** Each body axis is fitted on its own (two
+5-parameter linear least-squares problems). Fitting the wind jointly would make the model
+nonlinear (the products k_j·w) for no gain in what is used: the pseudo-measurement needs
+only the prediction φ_jᵀθ_j, which each axis's fit gives with its covariance. At a constant
+heading c_j and k_j·w enter through the same regressor; the prior on c (σ 0.5 m/s², a
+calibrated MEMS bias plus trim, :class:`DragModelConfig`) splits them towards the wind,
+which rotates with the heading; the covariance carries what the data leave open, and the
+prediction's variance φᵀPφ is what the σ uses. The wind is reported (for display) as the
+precision-weighted mean of the two axes' (k_j·w)/k_j (:meth:`DragModel.wind_ne_mps`).
+
+**Learning** (:meth:`DragModel.learn`, while all three axes are healthy, at the velocity
+measurement rate, ``f`` averaged by the caller over the interval): exponentially weighted
+Bayesian least squares with forgetting *towards the prior* (time constant ``tau_s``,
+default 90 s), each sample weighted by 1/σ_f²:
+
+    Λ ← λ Λ + (1 − λ) Λ₀ + φ φᵀ/σ_f²,   η ← λ η + φ f/σ_f²,   λ = exp(−Δt/τ),  θ = Λ⁻¹η
+
+so the information never decays below the weak prior Λ₀ (no covariance wind-up while the
+vehicle hovers) and Cov(θ) = Λ⁻¹. It runs in covariance form (RLS: P/λ and a rank-one
+update per sample, in plain floats; the prior's share put back exactly every 25 samples).
+The residual spread σ_f,j is the exponentially weighted RMS of the one-step-ahead residual
+e = f − φᵀθ_prev scaled by σ_f²/(σ_f² + φᵀPφ), floored at 0.02 m/s². A sample whose
+residual exceeds 5σ is not learnt (a GPS glitch) unless 25 come in a row.
+
+**Its own tests.** Per body row (:meth:`DragModel.trusted_rows`): enough data (effective
+sample count), enough excitation (spread of the body-frame speed r_j·v ≥ 0.3 m/s), a
+residual spread small enough to be useful (σ_f,j ≤ 0.15 m/s²) and k_j clearly positive
+(k_j ≥ 5σ(k_j)); only passing rows are used. Per earth axis (validation): while healthy,
+every 5th sample the pseudo-measurement of one axis in turn is compared with its
+measurement before the sample is learnt; an axis is aided only after ≥ 10 (effective)
+validations, with σ inflated by √NEES when the normalised squared error exceeds 1 and
+refused above 25. During a fault: when both rows see the lost axis their two values must
+agree within 3σ; if they disagree in > 20 % of recent calls the model is
+:attr:`DragModel.broken` (a wind change, another airframe) until it learns again.
+
+**Pseudo-measurement** (:meth:`DragModel.pseudo_measurement`): with the two measured earth
+axes known, each passing body row (A1) gives s_j (the root of the quadratic on the sign
+branch of the linear solution) and so the lost axis L:
+
+    v_L,j = (s_j − Σ_{i≠L} r_j,i v_i) / r_j,L
+
+with variance (σ_f,j² + φ_jᵀP_jφ_j + the measured axes' noise)/((k_j + 2q_j|s_j|) r_j,L)²;
+the two rows are combined by inverse-variance weighting. None when no row passes, the axis
+is not observable at this attitude (|r_j,L| < ``row_min``: a level vehicle cannot see d
+through horizontal drag), the axis is not in ``aided_axes`` (d is not, by default: the
+benchmark's numbers in ``docs/benchmarks/aero.md``), its validation has not passed, or σ
+exceeds ``sigma_max_mps``.
+
+**The aided axis** (:class:`AidedAxis`), a one-state Kalman filter on the lost axis's
+velocity (m/s): :meth:`AidedAxis.propagate` at the IMU rate with the earth-frame
+acceleration of that axis (a_L = (E Γ)_L, Γ = f + g_body, (12), less the accelerometer bias
+the estimator compensates); :meth:`AidedAxis.update` at the measurement rate with the
+pseudo-measurement, gated at 5σ. It starts from the hand-over value and σ and keeps the
+plain dead reckoning alongside: when the model declares itself broken the axis falls back
+to it. See its docstring for the noise model.
+
+Use from the estimator (per vehicle)::
+
+    model = DragModel()
+    # every velocity measurement while n, e, d are all healthy:
+    model.learn(t_s, f_mean_body_mps2, E, v_ned_mps)
+    # at the fault on axis L (0 n, 1 e, 2 d):
+    axis = AidedAxis(L, v0_mps=v_meas[L], sigma0_mps=sigma_meas, t0_s=t_s)
+    # every IMU sample:        axis.propagate(dt_s, a_ned_mps2[L])
+    # every velocity sample:   pm = model.pseudo_measurement(f_mean, E, v_meas, L)
+    #                          axis.update(pm, model.broken)        # pm may be None
+    # report axis.state() -> AidedState(v_mps, sigma_mps, aided)
+
+Cost (``benchmarks/aero.py``, same run as a baseline ``e_exact``): ``learn`` ~20 list
+operations on 5-vectors per body axis plus a pseudo-measurement every 5th call.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Number of parameters per body axis: (c, k, k·w_n, k·w_e, q).
+N_PARAM = 5
+#: Index of k (the linear drag coefficient) and q (the quadratic one) in θ.
+_K = 1
+_Q = 4
+
+
+@dataclass(frozen=True, slots=True)
+class DragModelConfig:
+    """Settings of :class:`DragModel` (defaults: uninformed, see each comment)."""
+
+    #: forgetting time constant, s (issue 13: slow, ~60-120 s)
+    tau_s: float = 90.0
+    #: prior σ of θ = (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m) around θ₀ = 0. k, k·w
+    #: and q: several times any plausible value (k < 1 1/s, |w| < 10 m/s, q < 0.2 1/m),
+    #: uninformed. c: 0.5 m/s², the size of a MEMS accelerometer's bias after calibration
+    #: (≤ 50 mg) plus a trim force. This one matters: at a constant heading c and k·w enter
+    #: (A1) through the same regressor (r_j ≈ const) and only the prior splits them; a
+    #: physical c puts the offset where it belongs (the wind, which rotates with the
+    #: heading) instead of a constant that does not (measured on f_coax_clean: an
+    #: uninformed c gave a 1.4 m/s phantom wind and 2 m/s errors after the next turn)
+    prior_sigma_theta: tuple[float, float, float, float, float] = (0.5, 2.0, 5.0, 5.0, 1.0)
+    #: σ_f before 10 effective samples, m/s² (large: untrusted until data says otherwise)
+    sigma_f_initial_mps2: float = 1.0
+    #: floor of σ_f, m/s²: a simulator's accelerometer can be cleaner than any real one
+    #: (ArduPilot SITL fits to 0.003); below ~0.02 (a MEMS accelerometer's noise averaged
+    #: over 40 ms, plus vibration) the model would claim more than a real sensor supports
+    sigma_f_floor_mps2: float = 0.02
+    #: effective number of samples before the model may be trusted (≈ 10 s at 10 Hz)
+    n_eff_min: float = 100.0
+    #: minimum spread (std) of the body-frame speed r_j·v per axis, m/s
+    speed_spread_min_mps: float = 0.3
+    #: k_j / σ(k_j) at least this (k clearly > 0)
+    k_z_min: float = 5.0
+    #: σ_f,j at most this, m/s² (a model that explains little is refused: at k ≈ 0.25 1/s
+    #: σ_f = 0.15 m/s² is already 0.6 m/s per row)
+    sigma_f_max_mps2: float = 0.15
+    #: a sample whose one-step residual exceeds this many σ is not learnt (a GPS glitch)...
+    outlier_sigma: float = 5.0
+    #: ...unless this many come in a row (the vehicle changed: learn it, σ_f grows)
+    outlier_run_max: int = 25
+    #: the prior's share of the forgetting is put back every this many samples
+    prior_every: int = 25
+    #: one validation (module docstring) every this many learnt samples
+    validate_every: int = 5
+    #: validation while healthy: the pseudo-measurement of each axis (one axis per learn
+    #: call, in turn, made before the sample is learnt) against the measured value, whose
+    #: noise is this σ, m/s
+    sigma_v_meas_mps: float = 0.05
+    #: effective number of validations per axis before that axis may be aided
+    nees_n_min: float = 10.0
+    #: normalised squared error above this: the axis is refused (its σ would have to be
+    #: inflated more than √25 = 5 times); between 1 and this, σ is inflated by √NEES
+    nees_max: float = 25.0
+    #: NED axes that may be aided (0 n, 1 e, 2 d). d is off by default: through the body
+    #: x/y rows it is seen only as −sinθ·v_d, an extrapolation the learning data barely
+    #: check (v_d ≈ 0 in cruise), and on ArduPilot's SITL quads forcing it on made d worse
+    #: than dead reckoning in 5 of 40 cases (worst 60 s RMS 1.68 vs 0.16 m/s) and better in
+    #: none, where dead reckoning on d holds 0.37 m/s median at 60 s
+    #: (docs/benchmarks/aero.md, "aiding forced on")
+    aided_axes: tuple[int, ...] = (0, 1)
+    #: both rows used and their two values of the lost axis differ by more than this many
+    #: σ: the model no longer fits (a wind change during the fault): no pseudo-measurement
+    row_consistency_sigma: float = 3.0
+    #: ...and when that happens in more than this fraction of the recent two-row
+    #: pseudo-measurements (exponential average over ~``inconsistency_window`` calls, at
+    #: least 10 of them), every pseudo-measurement is refused until the model learns again
+    inconsistency_max: float = 0.2
+    inconsistency_window: float = 25.0
+    #: gaps longer than this reset nothing but are clipped (a long gap forgets at most this), s
+    max_gap_s: float = 5.0
+    #: fit the quadratic term q_j·u_j|u_j| (A2); False: linear drag only
+    quadratic: bool = True
+
+
+class PseudoMeasurement(NamedTuple):
+    """The lost axis's velocity from the drag model, m/s, and its 1σ, m/s.
+
+    ``sigma_model_mps`` is the part of σ from the coefficients' uncertainty, which is the
+    same from one sample to the next (not averaged away by repeated updates)."""
+
+    v_mps: float
+    sigma_mps: float
+    sigma_model_mps: float
+
+
+class Trust(NamedTuple):
+    """The model's own test: ``ok`` and the reason when not."""
+
+    ok: bool
+    reason: str
+
+
+class DragModel:
+    """Per-body-axis (x, y) drag with wind, learnt online (see the module docstring)."""
+
+    def __init__(self, config: DragModelConfig | None = None) -> None:
+        self.config = config or DragModelConfig()
+        cfg = self.config
+        #: prior information Λ₀ = diag(1/σ_θ²), per axis (2, 5, 5)
+        self._lam0 = np.broadcast_to(
+            np.diag(1.0 / np.asarray(cfg.prior_sigma_theta) ** 2), (2, N_PARAM, N_PARAM)
+        ).copy()
+        #: θ and P = Λ⁻¹ = Cov(θ) per axis as plain floats (small fixed sizes: a learn call
+        #: in Python floats costs less than ~40 numpy calls on 5-vectors); numpy views of
+        #: them are built on demand (:attr:`_theta`, :attr:`_P`)
+        self._th: list[list[float]] = [[0.0] * N_PARAM for _ in range(2)]
+        self._Pl: list[list[list[float]]] = np.linalg.inv(self._lam0).tolist()
+        self._np_cache: tuple[FloatArray, FloatArray] | None = None
+        #: Σ (1 − λ) since the prior was last put back (module docstring)
+        self._prior_due = 0.0
+        self._trust_cache: tuple[tuple[bool, bool], tuple[str, str]] | None = None
+        #: exponentially weighted Σ e² σ_f²/(σ_f² + φᵀPφ) per axis, and Σ weights
+        self._res_sum = [0.0, 0.0]
+        self._n_eff = 0.0
+        #: exponentially weighted mean and mean square of r_j·v (body ground speed), per axis
+        self._s_sum = [0.0, 0.0]
+        self._s2_sum = [0.0, 0.0]
+        self._t_last_s: float | None = None
+        self.n_learned = 0
+        #: samples not learnt as outliers (one-step residual > outlier_sigma σ)
+        self.n_outliers = 0
+        self._outlier_run = 0
+        #: per NED axis: exponentially weighted Σ z² and Σ weights of the validation
+        #: z = (pseudo-measurement − measured) / √(σ² + σ_meas²), and its last time
+        self._nees_sum = np.zeros(3)
+        self._nees_n = np.zeros(3)
+        self._nees_t_s = np.full(3, np.nan)
+        #: two-row pseudo-measurements since the last learn: count and EW inconsistency
+        self._two_row_n = 0
+        self._inconsistency = 0.0
+
+    # ------------------------------------------------------------------ learning
+    def learn(
+        self,
+        t_s: float,
+        f_body_mps2: FloatArray | tuple[float, float, float],
+        E: FloatArray,
+        v_ned_mps: FloatArray | tuple[float, float, float],
+    ) -> None:
+        """One healthy sample: mean specific force over the interval (FRD, m/s²), body→NED
+        rotation E (3×3) and the measured NED velocity (m/s). Non-finite input is ignored."""
+        f = [float(x) for x in f_body_mps2]
+        v = [float(x) for x in v_ned_mps]
+        El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
+        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El))):
+            return  # a NaN or infinity anywhere makes the sum non-finite
+        cfg = self.config
+        sig_f = self._sigma_f_list()
+        phis: list[list[float]] = []
+        P_phis: list[list[float]] = []
+        errs: list[float] = []
+        pPps: list[float] = []
+        var_fs: list[float] = []
+        outlier = False
+        trusted = self._n_eff >= cfg.n_eff_min
+        for j in range(2):
+            # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), r_j the j-th column of E
+            rn, re, rd = El[0][j], El[1][j], El[2][j]
+            sj = rn * v[0] + re * v[1] + rd * v[2]
+            phi = [1.0, -sj, rn, re, -sj * abs(sj) if cfg.quadratic else 0.0]
+            P = self._Pl[j]
+            P_phi = [
+                Pa[0] * phi[0] + Pa[1] * phi[1] + Pa[2] * phi[2] + Pa[3] * phi[3] + Pa[4] * phi[4]
+                for Pa in P
+            ]
+            th = self._th[j]
+            # one-step-ahead residual with the previous θ
+            e = f[j] - (th[0] + th[1] * phi[1] + th[2] * rn + th[3] * re + th[4] * phi[4])
+            pPp = (
+                phi[0] * P_phi[0]
+                + phi[1] * P_phi[1]
+                + phi[2] * P_phi[2]
+                + phi[3] * P_phi[3]
+                + phi[4] * P_phi[4]
+            )
+            var_f = sig_f[j] ** 2
+            if trusted and e * e > cfg.outlier_sigma**2 * (var_f + pPp):
+                outlier = True
+            phis.append(phi)
+            P_phis.append(P_phi)
+            errs.append(e)
+            pPps.append(pPp)
+            var_fs.append(var_f)
+        self._two_row_n = 0
+        self._inconsistency = 0.0
+        if trusted and self.n_learned % cfg.validate_every == 0:
+            self._validate(t_s, np.asarray(f), np.asarray(El), np.asarray(v))
+        if outlier:
+            self.n_outliers += 1
+            self._outlier_run += 1
+            if self._outlier_run < cfg.outlier_run_max:
+                return  # not learnt; the next sample's forgetting spans this interval too
+        else:
+            self._outlier_run = 0
+        if self._t_last_s is None:
+            lam = 1.0
+        else:
+            dt = min(max(t_s - self._t_last_s, 0.0), cfg.max_gap_s)
+            lam = math.exp(-dt / cfg.tau_s)
+        self._t_last_s = t_s
+        self._n_eff = lam * self._n_eff + 1.0
+        inv_l = 1.0 / lam
+        for j in range(2):
+            e, var_f, pPp, P_phi = errs[j], var_fs[j], pPps[j], P_phis[j]
+            # σ_f: residual scaled to σ_f² by its expected variance σ_f² + φᵀPφ
+            self._res_sum[j] = lam * self._res_sum[j] + e * e * var_f / (var_f + pPp)
+            sj = -phis[j][1]
+            self._s_sum[j] = lam * self._s_sum[j] + sj
+            self._s2_sum[j] = lam * self._s2_sum[j] + sj * sj
+            # Λ ← λΛ + (1 − λ)Λ₀ + φφᵀ/σ_f² in covariance form: forgetting P/λ and the
+            # rank-one (Sherman-Morrison, RLS) update every sample; the prior's (1 − λ)Λ₀
+            # collected and put back exactly every ``prior_every`` samples
+            denom = var_f + pPp * inv_l
+            g = inv_l / denom  # gain K = g · Pφ
+            ge = g * e
+            self._th[j] = [t + ge * pa for t, pa in zip(self._th[j], P_phi, strict=True)]
+            c = inv_l * inv_l / denom
+            p0, p1, p2, p3, p4 = P_phi
+            self._Pl[j] = [
+                [
+                    Pr[0] * inv_l - ca * p0,
+                    Pr[1] * inv_l - ca * p1,
+                    Pr[2] * inv_l - ca * p2,
+                    Pr[3] * inv_l - ca * p3,
+                    Pr[4] * inv_l - ca * p4,
+                ]
+                for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+            ]
+        self._prior_due = lam * self._prior_due + (1.0 - lam)
+        self.n_learned += 1
+        self._np_cache = None
+        self._trust_cache = None
+        if self.n_learned % cfg.prior_every == 0:
+            self._put_prior_back()
+
+    def _put_prior_back(self) -> None:
+        """Λ += w Λ₀ (w the forgetting collected since the last time); θ = Λ⁻¹η with η
+        unchanged (θ₀ = 0): θ ← Λ_new⁻¹ Λ_old θ."""
+        lam_old = np.linalg.inv(self._P)
+        lam_old = 0.5 * (lam_old + np.swapaxes(lam_old, 1, 2))
+        eta = np.einsum("jpq,jq->jp", lam_old, self._theta)
+        P = np.linalg.inv(lam_old + self._prior_due * self._lam0)
+        self._Pl = P.tolist()
+        self._th = np.einsum("jpq,jq->jp", P, eta).tolist()
+        self._prior_due = 0.0
+        self._np_cache = None
+
+    def _validate(self, t_s: float, f: FloatArray, E: FloatArray, v: FloatArray) -> None:
+        """One axis in turn: how far the pseudo-measurement is from the measurement."""
+        cfg = self.config
+        axis = (self.n_learned // cfg.validate_every) % 3
+        pm = self.pseudo_measurement(f, E, v, axis, validated=False)
+        if pm is None:
+            return
+        t_last = self._nees_t_s[axis]
+        lam = 1.0 if math.isnan(t_last) else math.exp(-min(t_s - t_last, cfg.max_gap_s) / cfg.tau_s)
+        self._nees_t_s[axis] = t_s
+        z2 = (pm.v_mps - v[axis]) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
+        self._nees_sum[axis] = lam * self._nees_sum[axis] + z2
+        self._nees_n[axis] = lam * self._nees_n[axis] + 1.0
+
+    def _arrays(self) -> tuple[FloatArray, FloatArray]:
+        if self._np_cache is None:
+            self._np_cache = (np.array(self._th), np.array(self._Pl))
+        return self._np_cache
+
+    @property
+    def _theta(self) -> FloatArray:
+        return self._arrays()[0]
+
+    @property
+    def _P(self) -> FloatArray:
+        return self._arrays()[1]
+
+    @property
+    def broken(self) -> bool:
+        """The two body rows have disagreed too often since the last learnt sample."""
+        cfg = self.config
+        return self._two_row_n >= 10 and self._inconsistency > cfg.inconsistency_max
+
+    @property
+    def nees(self) -> FloatArray:
+        """Validation's mean normalised squared error per NED axis (NaN before any)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out: FloatArray = np.where(self._nees_n > 0.0, self._nees_sum / self._nees_n, np.nan)
+        return out
+
+    # ------------------------------------------------------------------ state
+    @property
+    def theta(self) -> FloatArray:
+        """θ per body axis (2, 5): (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m)."""
+        return self._theta.copy()
+
+    def _sigma_f_list(self) -> list[float]:
+        cfg = self.config
+        if self._n_eff < 10.0:
+            return [cfg.sigma_f_initial_mps2] * 2
+        n = self._n_eff
+        return [max(math.sqrt(r / n), cfg.sigma_f_floor_mps2) for r in self._res_sum]
+
+    @property
+    def sigma_f_mps2(self) -> FloatArray:
+        """Residual spread σ_f per body axis (x, y), m/s²."""
+        cfg = self.config
+        if self._n_eff < 10.0:
+            return np.full(2, cfg.sigma_f_initial_mps2)
+        out: FloatArray = np.maximum(
+            np.sqrt(np.asarray(self._res_sum) / self._n_eff), cfg.sigma_f_floor_mps2
+        )
+        return out
+
+    @property
+    def cov_theta(self) -> FloatArray:
+        """Covariance of θ per body axis (2, 5, 5): Λ⁻¹."""
+        out: FloatArray = np.array(self._P, dtype=np.float64)
+        return out
+
+    @property
+    def k_per_s(self) -> FloatArray:
+        """Linear drag coefficients (k_x, k_y), 1/s."""
+        return self._theta[:, _K].copy()
+
+    @property
+    def q_per_m(self) -> FloatArray:
+        """Quadratic drag coefficients (q_x, q_y), 1/m."""
+        return self._theta[:, _Q].copy()
+
+    @property
+    def speed_spread_mps(self) -> FloatArray:
+        """Weighted std of the body-frame ground speed r_j·v per axis, m/s."""
+        if self._n_eff <= 0.0:
+            return np.zeros(2)
+        m = np.asarray(self._s_sum) / self._n_eff
+        out: FloatArray = np.sqrt(np.maximum(np.asarray(self._s2_sum) / self._n_eff - m * m, 0.0))
+        return out
+
+    def wind_ne_mps(self) -> tuple[float, float, float] | None:
+        """Wind (w_n, w_e) m/s from the two axes' (k·w)/k, precision-weighted, and its σ
+        (m/s, the larger of the two components'); None while k is not clearly positive."""
+        k = self._theta[:, _K]
+        cov = self.cov_theta
+        var_k = cov[:, _K, _K]
+        if not (k > 3.0 * np.sqrt(var_k)).all():
+            return None
+        w = self._theta[:, 2:4] / k[:, None]  # (2 axes, n e)
+        # first-order variance of a/k: (var a + (a/k)² var k − 2 (a/k) cov(a, k)) / k²
+        var_a = cov[:, (2, 3), (2, 3)]
+        cov_ak = cov[:, (2, 3), _K]
+        var = (var_a + w**2 * var_k[:, None] - 2.0 * w * cov_ak) / (k**2)[:, None]
+        wt = 1.0 / np.maximum(var, 1e-12)
+        w_ne = (wt * w).sum(axis=0) / wt.sum(axis=0)
+        sig = np.sqrt(1.0 / wt.sum(axis=0))
+        return float(w_ne[0]), float(w_ne[1]), float(sig.max())
+
+    def trusted_rows(self) -> tuple[NDArray[np.bool_], str]:
+        """Which body rows (x, y) pass the model's own test, and why the others do not."""
+        ok, failed = self._row_tests()
+        return np.array(ok), self._reasons(failed)
+
+    def _row_tests(self) -> tuple[tuple[bool, bool], tuple[str, str]]:
+        """Per row: passed, and the name of the first failed test ("" when passed);
+        plain floats, cached until the next learnt sample."""
+        if self._trust_cache is not None:
+            return self._trust_cache
+        cfg = self.config
+        if self._n_eff < cfg.n_eff_min:
+            out = ((False, False), ("n_eff", "n_eff"))
+        else:
+            n = self._n_eff
+            floor2 = cfg.sigma_f_floor_mps2**2
+            ok: list[bool] = []
+            failed: list[str] = []
+            for j in range(2):
+                m = self._s_sum[j] / n
+                spread2 = self._s2_sum[j] / n - m * m
+                var_f = max(self._res_sum[j] / n, floor2)
+                k = self._th[j][_K]
+                var_k = self._Pl[j][_K][_K]
+                if spread2 < cfg.speed_spread_min_mps**2:
+                    failed.append("spread")
+                elif var_f > cfg.sigma_f_max_mps2**2:
+                    failed.append("residual")
+                elif k < cfg.k_z_min * math.sqrt(var_k):
+                    failed.append("k")
+                else:
+                    failed.append("")
+                ok.append(not failed[-1])
+            out = ((ok[0], ok[1]), (failed[0], failed[1]))
+        self._trust_cache = out
+        return out
+
+    def _reasons(self, failed: tuple[str, str]) -> str:
+        cfg = self.config
+        if failed[0] == "n_eff":
+            return f"n_eff {self._n_eff:.0f} < {cfg.n_eff_min:.0f}"
+        spread = self.speed_spread_mps
+        sig_f = self.sigma_f_mps2
+        k = self._theta[:, _K]
+        z = k / np.sqrt(self._P[:, _K, _K])
+        why: list[str] = []
+        for j, name in enumerate("xy"):
+            if failed[j] == "spread":
+                why.append(f"{name}: speed spread {spread[j]:.2f} m/s")
+            elif failed[j] == "residual":
+                why.append(f"{name}: residual spread {sig_f[j]:.3f} m/s²")
+            elif failed[j] == "k":
+                why.append(f"{name}: k {k[j]:.3f} 1/s not clearly > 0 (z {z[j]:.1f})")
+        return "; ".join(why) if why else "ok"
+
+    def trust(self) -> Trust:
+        """The model's own test (module docstring): trusted when at least one body row
+        passes it (the pseudo-measurement uses only rows that do), else the reasons."""
+        ok, why = self.trusted_rows()
+        return Trust(bool(ok.any()), why)
+
+    # ------------------------------------------------------------------ using it
+    def pseudo_measurement(
+        self,
+        f_body_mps2: FloatArray | tuple[float, float, float],
+        E: FloatArray,
+        v_ned_known_mps: FloatArray | tuple[float, float, float],
+        lost_axis: int,
+        *,
+        sigma_v_known_mps: float = 0.1,
+        row_min: float = 0.2,
+        sigma_max_mps: float = 1.0,
+        validated: bool = True,
+    ) -> PseudoMeasurement | None:
+        """The lost NED axis (0 n, 1 e, 2 d) from the two body drag equations (module
+        docstring), or None (untrusted model, axis unobservable at this attitude, σ too
+        large). ``v_ned_known_mps[lost_axis]`` is ignored; the other two are measured with
+        noise σ ``sigma_v_known_mps``. ``validated``: only for an axis whose validation
+        while healthy passed, σ inflated by √NEES when that is above 1."""
+        if lost_axis not in (0, 1, 2):
+            raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
+        f = [float(x) for x in f_body_mps2]
+        v = [float(x) for x in v_ned_known_mps]
+        v[lost_axis] = 0.0
+        El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
+        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El))):
+            return None
+        cfg = self.config
+        scale = 1.0
+        if validated:
+            if lost_axis not in cfg.aided_axes:
+                return None
+            n = float(self._nees_n[lost_axis])
+            if n < cfg.nees_n_min:
+                return None
+            nees = float(self._nees_sum[lost_axis]) / n
+            if not nees <= cfg.nees_max:
+                return None
+            scale = math.sqrt(max(1.0, nees))
+        ok, _ = self._row_tests()
+        sig_f = self._sigma_f_list()
+        known = [i for i in range(3) if i != lost_axis]
+        parts: list[tuple[float, float, float]] = []
+        for j in range(2):
+            r = (El[0][j], El[1][j], El[2][j])  # r_j: the j-th column of E
+            r_lost = r[lost_axis]
+            if not ok[j] or abs(r_lost) < row_min:
+                continue
+            c, k, kwn, kwe, q = self._th[j]
+            # (A2): f_j = a_j − k s_j − q s_j|s_j| with a_j = c + r_n k·w_n + r_e k·w_e;
+            # solve for s_j = r_j·v (monotone while k + 2q|s| > 0): the root of the
+            # quadratic on the sign branch of the linear solution
+            a_j = c + r[0] * kwn + r[1] * kwe - f[j]
+            s_j = a_j / k
+            if q != 0.0:
+                sg = 1.0 if s_j >= 0.0 else -1.0
+                disc = k * k + 4.0 * q * sg * a_j
+                if disc >= 0.0:
+                    s_j = sg * 2.0 * abs(a_j) / (k + math.sqrt(disc))  # stable form of the root
+            slope = k + 2.0 * q * abs(s_j)  # −∂f_j/∂s_j
+            if slope <= 0.0:
+                continue
+            g2 = (slope * r_lost) ** 2  # (∂f_j/∂v_L)²
+            v_j = (s_j - sum(r[i] * v[i] for i in known)) / r_lost
+            phi = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
+            P = self._Pl[j]
+            var_model = (
+                sum(phi[a] * sum(P[a][b] * phi[b] for b in range(N_PARAM)) for a in range(N_PARAM))
+                / g2
+            )
+            var_white = (
+                sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
+            ) / g2
+            parts.append((v_j, var_white + var_model, var_model))
+        if not parts:
+            return None
+        if len(parts) == 2:
+            (v_x, var_x, _), (v_y, var_y, _) = parts
+            bad = (v_x - v_y) ** 2 > cfg.row_consistency_sigma**2 * (var_x + var_y)
+            if validated:
+                self._two_row_n += 1
+                self._inconsistency += (float(bad) - self._inconsistency) / cfg.inconsistency_window
+            if bad:
+                return None
+        if validated and self.broken:
+            return None
+        den = sum(1.0 / var_j for _, var_j, _ in parts)
+        var = 1.0 / den
+        v_lost = var * sum(v_j / var_j for v_j, var_j, _ in parts)
+        var_model_comb = sum((var / var_j) ** 2 * var_m for _, var_j, var_m in parts)
+        sigma = scale * math.sqrt(var)
+        if sigma > sigma_max_mps:
+            return None
+        return PseudoMeasurement(v_lost, sigma, scale * math.sqrt(var_model_comb))
+
+
+# ---------------------------------------------------------------------- the aided axis
+@dataclass(frozen=True, slots=True)
+class AidedAxisConfig:
+    """Noise model of :class:`AidedAxis`."""
+
+    #: white noise of the earth-frame acceleration, m/s²/√Hz (accelerometer noise density
+    #: of a small MEMS IMU with vibration, ~0.05; integrates to σ·√t)
+    accel_noise_mps2_rthz: float = 0.05
+    #: unknown constant error of the earth-frame acceleration, m/s², integrating to σ·t.
+    #: Horizontal (n, e): accelerometer bias left after calibration (~0.02) plus g·sin of
+    #: the attitude estimate's error (~0.2°: 0.035), ≈ 0.05. Vertical (d): the attitude
+    #: error enters only at second order (g·(1 − cos)), so the bias alone, 0.02
+    accel_bias_h_mps2: float = 0.05
+    accel_bias_v_mps2: float = 0.02
+    #: gate: an update whose |innovation| > gate_sigma · √(P + R) is rejected
+    gate_sigma: float = 5.0
+    #: correlation time of the pseudo-measurement's white part, s: updates closer than
+    #: this are not independent (turbulence, manoeuvres), so R is inflated by τ_c/Δt
+    corr_time_s: float = 1.0
+    #: correlation time of its model part (the coefficients' error: changes only as the
+    #: attitude does), s; R's model part is inflated by τ_m/Δt likewise
+    model_corr_time_s: float = 10.0
+    #: this many rejections in a row and aiding stops (the model no longer fits)
+    max_rejections: int = 50
+
+
+class AidedState(NamedTuple):
+    """The lost axis: velocity (m/s), its 1σ (m/s), and whether the last accepted
+    pseudo-measurement is recent (aided) or the axis is dead-reckoned."""
+
+    v_mps: float
+    sigma_mps: float
+    aided: bool
+
+
+class AidedAxis:
+    """One-state Kalman filter of a lost NED velocity axis (m/s).
+
+    Process model: v̇ = a_L + b + n, with a_L the IMU's earth-frame acceleration of the
+    axis, b an unknown constant error of σ ``accel_bias_mps2`` and n white noise of density
+    ``accel_noise_mps2_rthz``. A one-state filter cannot carry b, so the variance grows as
+    it would under a constant b since the last accepted update, τ seconds ago:
+
+        P ← P + (σ_n² + 2 σ_b² τ) Δt        (pure propagation: P = P₀ + σ_n² t + σ_b² t²)
+
+    Update with a pseudo-measurement z (σ_z, model part σ_m): innovation ν = z − v,
+    R = (σ_z² − σ_m²) · max(1, τ_c/Δt_u) + σ_m²; rejected when |ν| > 5 √(P + R); after an
+    accepted update P ≥ σ_m² (the coefficient error is the same in every pseudo-measurement
+    and is not averaged away). ``max_rejections`` in a row stop the aiding for good.
+    """
+
+    def __init__(
+        self,
+        lost_axis: int,
+        v0_mps: float,
+        sigma0_mps: float,
+        t0_s: float = 0.0,
+        config: AidedAxisConfig | None = None,
+    ) -> None:
+        if lost_axis not in (0, 1, 2):
+            raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
+        self.lost_axis = lost_axis
+        self.config = config or AidedAxisConfig()
+        self.v_mps = float(v0_mps)
+        self.P_mps2 = float(sigma0_mps) ** 2
+        #: dead reckoning from the hand-over, kept for the fall-back
+        self.v_dr_mps = self.v_mps
+        self.P_dr_mps2 = self.P_mps2
+        self.t_s = t0_s
+        self._tau_s = 0.0  # time since the hand-over (the unestimated bias acts since then)
+        self._since_update_s = math.inf  # time since the last accepted update
+        self._t_update_s: float | None = None
+        self.n_accepted = 0
+        self.n_rejected = 0
+        self._rejections_in_row = 0
+        self.stopped = False
+
+    def propagate(self, dt_s: float, a_ned_axis_mps2: float) -> None:
+        """Advance by ``dt_s`` with the earth-frame acceleration of the lost axis (m/s²)."""
+        if dt_s <= 0.0 or not math.isfinite(a_ned_axis_mps2):
+            return
+        cfg = self.config
+        sigma_b = cfg.accel_bias_v_mps2 if self.lost_axis == 2 else cfg.accel_bias_h_mps2
+        # exact integral of σ_n² + 2 σ_b² τ over [τ, τ + Δt]
+        dP = cfg.accel_noise_mps2_rthz**2 * dt_s + sigma_b**2 * (
+            (self._tau_s + dt_s) ** 2 - self._tau_s**2
+        )
+        self.v_mps += a_ned_axis_mps2 * dt_s
+        self.P_mps2 += dP
+        self.v_dr_mps += a_ned_axis_mps2 * dt_s
+        self.P_dr_mps2 += dP
+        self._tau_s += dt_s
+        self._since_update_s += dt_s
+        self.t_s += dt_s
+
+    def update(self, pm: PseudoMeasurement | None, model_broken: bool = False) -> bool:
+        """Fuse a pseudo-measurement (None: nothing to fuse). True when accepted.
+
+        ``model_broken`` (:attr:`DragModel.broken`: the model failed its own test during
+        the fault): aiding stops and the axis falls back to dead reckoning from the
+        hand-over (kept alongside), so a model that went wrong leaves nothing behind."""
+        if model_broken and not self.stopped:
+            self.stopped = True
+            self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+        if pm is None or self.stopped:
+            return False
+        cfg = self.config
+        dt_u = cfg.corr_time_s if self._t_update_s is None else self.t_s - self._t_update_s
+        self._t_update_s = self.t_s
+        var_m = pm.sigma_model_mps**2
+        var_white = max(pm.sigma_mps**2 - var_m, 0.0)
+        dt_u = max(dt_u, 1e-6)
+        R = var_white * max(1.0, cfg.corr_time_s / dt_u) + var_m * max(
+            1.0, cfg.model_corr_time_s / dt_u
+        )
+        nu = pm.v_mps - self.v_mps
+        S = self.P_mps2 + R
+        # the gate uses the pseudo-measurement's own σ (not the correlation-inflated R)
+        if nu * nu > cfg.gate_sigma**2 * (self.P_mps2 + pm.sigma_mps**2):
+            self.n_rejected += 1
+            self._rejections_in_row += 1
+            if self._rejections_in_row >= cfg.max_rejections:
+                # the pseudo-measurements and the estimate parted: one of them went wrong
+                # and the filter cannot tell which; dead reckoning is the safe side
+                self.stopped = True
+                self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+            return False
+        K = self.P_mps2 / S
+        self.v_mps += K * nu
+        self.P_mps2 = max((1.0 - K) * self.P_mps2, var_m)
+        self._since_update_s = 0.0
+        self.n_accepted += 1
+        self._rejections_in_row = 0
+        return True
+
+    def state(self, aided_within_s: float = 1.0) -> AidedState:
+        """(v, σ, aided): aided while an update was accepted in the last ``aided_within_s``."""
+        aided = self._since_update_s <= aided_within_s and not self.stopped
+        return AidedState(self.v_mps, math.sqrt(self.P_mps2), aided)
