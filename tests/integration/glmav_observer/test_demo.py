@@ -121,30 +121,29 @@ def test_demo_on_the_autopilot_sensor_profile(tmp_path: Path) -> None:
     assert 4000 < int(m.group(1)) < 9000 and int(m.group(2)) == 0, out
     row = re.search(r"^active\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.MULTILINE)
     assert row is not None, out
-    # the input lags truth by 150 ms in a 3 m/s, 0.3 rad/s turn (0.9 m/s²): ~0.13 m/s
-    # of its own, plus 1-3 s of a wrong call on d during the take-off (below), dead-
-    # reckoning d meanwhile: measured 0.12-0.33 m/s over 10 runs; bound 0.5 m/s per axis
-    # (ideal profile: 0.1). This profile is where the service is still weak (issue 12).
-    assert max(float(x) for x in row.groups()) <= 0.5, out
+    # the input lags truth by 150 ms in a 3 m/s, 0.3 rad/s turn (0.9 m/s²): ~0.13 m/s of
+    # its own if nothing compensated it; the FDI's fit learns the lag and the bank takes
+    # the measurement moved to the present (docs/observer.md): measured 0.067-0.089 m/s
+    # over 7 runs. Bound 0.15 m/s per axis: above the compensated figure with the
+    # fault's 6 s of dead reckoning on e, about what an uncompensated lag alone costs.
+    assert max(float(x) for x in row.groups()) <= 0.15, out
     iso = re.search(r"fault isolated: axis (\w) \((\w+)\) at t = ([\d.]+) s, ([\d.]+) s after", out)
     assert iso is not None and (iso.group(1), iso.group(2)) == ("e", "bias"), out
     # the first biased sample is up to 0.1 s (10 Hz) + 0.15 s (lag) late, and the bias
-    # test needs 3 failing samples (0.2 s more at 10 Hz): bound 0.75 s
+    # test needs 3 failing samples (0.2 s more at 10 Hz): bound 0.75 s (measured 0.40)
     assert 0.0 <= float(iso.group(4)) <= 0.75, out
+    assert "also isolated" not in out, out
     switches = re.findall(r"switch: (\w+) -> (\w+) at t = ([\d.]+) s \((\w+)\), jump ([\d.]+)", out)
-    assert ("full", "c3", iso.group(3)) in [(a, b, t) for a, b, t, *_ in switches], out
-    # The GPS's 150 ms lag during the take-off's vertical acceleration can read as a bias
-    # on d (the live service does not model the lag yet: docs/observer.md). Such a wrong
-    # call must cost little and briefly: every hand-over before the fault is taken back
-    # within 4 s (measured 1.0-2.9 s). Jumps: a 10 Hz measurement moves `full` in steps of 0.1 s of the vehicle's
-    # acceleration (up to 0.9 m/s² in the turn: 0.09 m/s), and a switch back adds the first
-    # 20 ms of the dead reckoning's correction at γ = 4 (8 % of up to 0.6 m/s of drift):
-    # bound 0.15 m/s (measured 0.036-0.101 over 5 runs).
-    t_fault = 10.0
-    pairs = list(zip(switches[::2], switches[1::2], strict=False))
-    for (_, to, t0, *_), (frm, back, t1, *_) in pairs:
-        assert (frm, back) == (to, "full"), out
-        if float(t0) < t_fault:
-            assert float(t1) - float(t0) <= 4.0, out
-    assert all(float(j) <= 0.15 for *_, j in switches), out
+    # No wrong call before the fault (the take-off's acceleration on a 150 ms late GPS
+    # used to read as a bias on d for 1-3 s): the hand-over at the fault and the way back
+    # once e has been healthy for recovery_s = 2 s after the fault ends at 14 s.
+    assert [(a, b) for a, b, *_ in switches] == [("full", "c3"), ("c3", "full")], out
+    assert switches[0][2] == iso.group(3), out
+    assert 16.0 <= float(switches[1][2]) < 22.0, out
+    # Hand-over: the daemon issue's 0.05 m/s (measured 0.017-0.043). Way back: the re-
+    # admitted e pulls `full` off the dead reckoning of the last 6 s; measured 0.063-0.180
+    # m/s over 8 runs, its share per cause not yet analysed (ramping the gain of `full`
+    # from 0 after the switch did not change it): bound 0.25 m/s, issue 12 in the note.
+    assert float(switches[0][4]) <= 0.05, out
+    assert float(switches[1][4]) <= 0.25, out
     assert "active configuration at the end: full" in out
