@@ -87,6 +87,13 @@ CHI2_1_MEDIAN = 0.45494
 N_THETA = 8
 #: Index of the lag (s) in θ.
 LAG = 7
+#: A residual isolation is withdrawn when the residual against the dead reckoning ramps
+#: faster than this (m/s², beyond 3σ of the slope) over the last RAMP_WINDOW_S: a velocity
+#: sensor's fault is an offset or noise around the truth; a ramp is the IMU's path (an
+#: attitude estimator lost in a ballistic climb) drifting, more than any accelerometer
+#: bias the fit leaves (prior 0.3 m/s²).
+RAMP_LIMIT_MPS2 = 0.5
+RAMP_WINDOW_S = 1.0
 #: Window (s) of the lag regressor L: the IMU's mean earth acceleration over it.
 LAG_WINDOW_S = 0.1
 #: The lag is a property of the link, learnt over many windows: the memory's time
@@ -533,6 +540,8 @@ class AxisMonitor:
     #: squares and the running mean of those squares while the axis is healthy (white noise
     #: σ gives 6σ²; smooth motion adds only jerk·Δt²)
     _y_prev: tuple[float, float] = (math.nan, math.nan)
+    #: (t, r) since a residual isolation: the withdrawal rule (RAMP_LIMIT_MPS2)
+    _ramp: deque[tuple[float, float]] = field(default_factory=deque)
     _d2y_sq: deque[float] = field(default_factory=lambda: deque(maxlen=64))
     var_d2y_mps2: float = 0.0
     _v_imu_at_value: float = 0.0  # the IMU's velocity when the current value was first seen
@@ -738,6 +747,10 @@ class AxisMonitor:
             (x for x in (bias_ratio, noise_ratio, freeze_ratio) if math.isfinite(x)), default=0.0
         )
         if self.state in (AxisState.FAULTY, AxisState.RECOVERING):
+            if math.isfinite(r) and self.fault is not None and self.fault.kind in RESIDUAL_KINDS:
+                self._ramp.append((t_s, r))
+                while self._ramp[0][0] < t_s - RAMP_WINDOW_S:
+                    self._ramp.popleft()
             return self._recovery(
                 t_s, r=r, repeated=repeated, bias_ratio=bias_ratio, noise_ratio=noise_ratio,
                 ratio=ratio,
@@ -761,6 +774,24 @@ class AxisMonitor:
         self._pending.append((t_s, y_mps - a_int_mps, not repeated, ints, math.nan))
         return AxisVerdict(not repeated, math.nan, ratio, self.state)
 
+    def ramping(self, t_s: float) -> bool:
+        """The residual against the dead reckoning ramps faster than RAMP_LIMIT_MPS2 over
+        the last RAMP_WINDOW_S of a residual isolation (least-squares slope, beyond 3σ of
+        its own scatter)."""
+        pts = self._ramp
+        if len(pts) < 8 or t_s - self._t_isolated_s < RAMP_WINDOW_S:
+            return False
+        t = np.fromiter((p[0] for p in pts), dtype=np.float64, count=len(pts))
+        r = np.fromiter((p[1] for p in pts), dtype=np.float64, count=len(pts))
+        dt = t - t.mean()
+        sxx = float(dt @ dt)
+        if sxx <= 0.0:
+            return False
+        slope = float(dt @ (r - r.mean())) / sxx
+        e = r - r.mean() - slope * dt
+        sigma_slope = math.sqrt(float(e @ e) / max(len(pts) - 2, 1) / sxx)
+        return abs(slope) > RAMP_LIMIT_MPS2 + 3.0 * sigma_slope
+
     def wants_isolation(self) -> FaultKind | None:
         """A bias or noise test failed ``k_isolate`` samples in a row: the kind, else None."""
         if self.state is not AxisState.SUSPECT or self._fail_run < self.cfg.k_isolate:
@@ -780,6 +811,7 @@ class AxisMonitor:
         rb = list(self._resid)[-self.cfg.bias_samples :]
         self._fault_level_mps = statistics.median(rb) if rb else 0.0
         self._iso_resid.clear()
+        self._ramp.clear()
         self._stepped_back_level = None
         self._pending.clear()
         self._resid.clear()
@@ -915,6 +947,8 @@ class FaultDetector:
     axes: tuple[AxisMonitor, AxisMonitor, AxisMonitor] = field(init=False)
     accel_changes: list[AccelChange] = field(default_factory=list)
     reference_drifts: int = 0
+    #: residual isolations withdrawn on a ramping residual (RAMP_LIMIT_MPS2)
+    ramp_withdrawals: int = 0
     #: (t, axis, residual, B flat 9) of every axis over the last change_window_s
     _recent: deque[tuple[float, int, float, tuple[float, ...]]] = field(default_factory=deque)
 
@@ -963,6 +997,11 @@ class FaultDetector:
     ) -> tuple[AxisVerdict, AxisVerdict, AxisVerdict]:
         """Isolate the axes whose tests failed k times, unless an accelerometer change
         explains the residuals of all axes better (module docstring)."""
+        for ax in self.axes:
+            if ax.fault is not None and ax.fault.kind in RESIDUAL_KINDS and ax.ramping(t_s):
+                # the IMU's path drifts, not the axis: withdraw, restart the reference
+                self.ramp_withdrawals += 1
+                return self._rebase(t_s, t_s, None, ax.axis, v)
         wants: list[tuple[int, FaultKind]] = []
         for j, ax in enumerate(self.axes):
             k = ax.wants_isolation()

@@ -516,6 +516,8 @@ class VehicleEstimator:
     def _after_fdi(self, t: float, faulty_before: set[int]) -> None:
         if self.fdi.reference_drifts:  # re-anchorings on a reference offset (no event)
             self.counters["fdi_reference_offsets"] = self.fdi.reference_drifts
+        if self.fdi.ramp_withdrawals:  # residual isolations withdrawn on a ramp (no event)
+            self.counters["fdi_ramp_withdrawals"] = self.fdi.ramp_withdrawals
         changes = self.fdi.accel_changes
         while self._n_accel_changes < len(changes):
             ch = changes[self._n_accel_changes]
