@@ -776,8 +776,9 @@ class AxisMonitor:
 
     def ramping(self, t_s: float) -> bool:
         """The residual against the dead reckoning ramps faster than RAMP_LIMIT_MPS2 over
-        the last RAMP_WINDOW_S of a residual isolation (least-squares slope, beyond 3σ of
-        its own scatter)."""
+        the last RAMP_WINDOW_S of a residual isolation: its least-squares slope beyond the
+        limit plus 3σ of its own scatter, and a line fits it better than any single step
+        (a bias that ends is a step, and steepens a line through it)."""
         pts = self._ramp
         if len(pts) < 8 or t_s - self._t_isolated_s < RAMP_WINDOW_S:
             return False
@@ -789,8 +790,19 @@ class AxisMonitor:
             return False
         slope = float(dt @ (r - r.mean())) / sxx
         e = r - r.mean() - slope * dt
-        sigma_slope = math.sqrt(float(e @ e) / max(len(pts) - 2, 1) / sxx)
-        return abs(slope) > RAMP_LIMIT_MPS2 + 3.0 * sigma_slope
+        sse_line = float(e @ e)
+        sigma_slope = math.sqrt(sse_line / (len(pts) - 2) / sxx)
+        if abs(slope) <= RAMP_LIMIT_MPS2 + 3.0 * sigma_slope:
+            return False
+        # the best single step: two constant segments, split anywhere (≥ 2 samples each)
+        c1 = np.cumsum(r)
+        c2 = np.cumsum(r * r)
+        n = len(r)
+        k = np.arange(2, n - 1)
+        left = c2[k - 1] - c1[k - 1] ** 2 / k
+        right = (c2[-1] - c2[k - 1]) - (c1[-1] - c1[k - 1]) ** 2 / (n - k)
+        sse_step = float(np.min(left + right))
+        return sse_line < sse_step
 
     def wants_isolation(self) -> FaultKind | None:
         """A bias or noise test failed ``k_isolate`` samples in a row: the kind, else None."""
