@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -11,10 +12,14 @@ from glmav_observer.estimation.fdi import (
     LAG,
     LAG_WINDOW_S,
     MIN_PRE_SAMPLES,
+    RAMP_LIMIT_MPS2,
+    RAMP_WINDOW_S,
+    AxisMonitor,
     FdiConfig,
     ReferenceFit,
     classify_change,
 )
+from glmav_observer.records import FaultEvent
 
 SIG = (0.03, 0.03, 0.03)
 RATE_HZ = 25.0
@@ -139,3 +144,34 @@ def test_the_fit_learns_a_late_measurement(lag_s: float) -> None:
     assert fit.ref.theta[LAG] == pytest.approx(lag_s, abs=0.01)
     # an observed lag (> 2σ) for every lag but zero: the compensation applies it
     assert (fit.ref.observed(LAG) > 0.0) == (lag_s > 0.0)
+
+
+def _isolated_axis(residual: Callable[[float], float], rate_hz: float = 10.0) -> AxisMonitor:
+    """An axis isolated (bias) at t = 0 whose residual against the dead reckoning then
+    follows ``residual`` over RAMP_WINDOW_S, at ``rate_hz``, with 0.05 m/s of noise."""
+    cfg = FdiConfig()
+    ax = AxisMonitor("n", 0, cfg, ReferenceFit(cfg))
+    ax.fault = FaultEvent("n", "bias", 0.0)
+    rng = np.random.default_rng(3)
+    n = round(RAMP_WINDOW_S * rate_hz) + 1
+    for k in range(n):
+        t = k / rate_hz
+        ax._ramp.append((t, residual(t) + float(rng.normal(0.0, 0.05))))
+    return ax
+
+
+def test_a_residual_that_ramps_after_an_isolation_is_the_imus_path() -> None:
+    """A lost attitude: g·δθ ≈ 1 m/s² on n (a 6° tilt). Over 1 s at 10 Hz with σ 0.05 the
+    slope's σ is 0.05/√(Σ(t − t̄)²) = 0.05/0.96 ≈ 0.05 m/s²: 1 m/s² is far beyond 0.5 + 3σ;
+    0.3 m/s² (an accelerometer bias the fit can leave) is below it."""
+    assert _isolated_axis(lambda t: 0.5 + 1.0 * t).ramping(RAMP_WINDOW_S)
+    assert not _isolated_axis(lambda t: 0.5 + 0.3 * t).ramping(RAMP_WINDOW_S)
+    assert RAMP_LIMIT_MPS2 == 0.5  # the numbers above assume it
+
+
+def test_a_bias_that_ends_is_a_step_not_a_ramp() -> None:
+    """A 1 m/s bias removed mid-window: a line through it has slope ≈ 1.5 m/s² (it
+    withdrew 26 injected isolations at their end before the step model was compared);
+    the single-step fit explains it better."""
+    assert not _isolated_axis(lambda t: 1.0 if t < 0.5 else 0.0).ramping(RAMP_WINDOW_S)
+    assert not _isolated_axis(lambda t: 0.0 if t < 0.5 else 1.0).ramping(RAMP_WINDOW_S)
