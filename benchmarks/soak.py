@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import sys
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +45,25 @@ def run(quick: bool = False) -> dict[str, Any]:
     warmup = min(60.0, duration / 4)
     load_before = os.getloadavg()
     traffic = os.environ.get("GLMAV_SOAK_TRAFFIC", "sitl")
-    r = soak(n, duration, warmup, windows=4 if quick else 10, traffic=traffic)
+    # the 1-minute load average every 10 s during the run (the machine is shared: the
+    # drop figure only means something next to the load it was measured under)
+    load_1min: list[tuple[float, float]] = []
+    done = threading.Event()
+    t0 = time.monotonic()
+
+    def sample_load() -> None:
+        while not done.wait(10.0):
+            load_1min.append((round(time.monotonic() - t0, 1), os.getloadavg()[0]))
+
+    sampler = threading.Thread(target=sample_load, name="loadavg", daemon=True)
+    sampler.start()
+    try:
+        r = soak(n, duration, warmup, windows=4 if quick else 10, traffic=traffic)
+    finally:
+        done.set()
+        sampler.join()
     r["loadavg_before"] = load_before
+    r["loadavg_1min_series"] = load_1min
     r["loadavg_after"] = os.getloadavg()
     w = r["latency_windows"]
     p99_first, p99_last = w[0]["p99_ms"], w[-1]["p99_ms"]
@@ -90,13 +110,20 @@ def to_markdown(result: dict[str, Any]) -> str:
     r = result
     m = r.get("machine") or machine()
     rmse = [v for v in r["max_rmse_active_mps"].values() if v is not None]
+    during = [v for _, v in r.get("loadavg_1min_series", [])]
+    load_during = (
+        f"; during the run (every 10 s) min {min(during):.1f}, median "
+        f"{statistics.median(during):.1f}, max {max(during):.1f}"
+        if during
+        else ""
+    )
     lines = [
         f"Command: `{'GLMAV_SOAK_TRAFFIC=fleet ' if r.get('traffic') == 'fleet' else ''}"
         f"python -m benchmarks.soak{' --quick' if r['quick'] else ''}` — "
         f"{r['n_vehicles']} vehicles × {r['duration_s']:.0f} s in real time, warm-up "
         f"{r['warmup_s']:.0f} s; {m['cpu']}, {m['cores']} cores; load average "
-        f"{r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after (other "
-        "work on the machine competes for the two cores).",
+        f"{r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after"
+        f"{load_during} (other work on the machine competes for the two cores).",
         "",
         format_goals(r["goals"]),
         "",
