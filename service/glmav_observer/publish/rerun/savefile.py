@@ -25,9 +25,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: ``flush_file`` gives up when the file has not grown for this long (s): Rerun's flush
-#: waits for its writer thread, and when that thread died on a failed write just before
-#: the flush it can wait out any timeout (seen: 1 run in 12 under a file-size limit)
+#: ``flush_file`` gives up when the file has not grown for this long (s): when Rerun's
+#: writer thread dies on a failed write, its flush can wait out its whole timeout (a
+#: 600 s one, in 4 of about 100 runs under a file-size limit) instead of failing
 STALL_S = 10.0
 
 
@@ -67,8 +67,8 @@ def flush_file(rec: rr.RecordingStream, path: Path, stall_s: float = STALL_S) ->
 def disconnect_bounded(rec: rr.RecordingStream, timeout_s: float = STALL_S) -> None:
     """Disconnect ``rec`` after its file writer failed, waiting at most ``timeout_s``.
 
-    After a failed write, Rerun's ``disconnect`` can wait forever (seen: 1 run in 20 under
-    a file-size limit, after a flush that timed out); the file is refused anyway, so the
+    After a failed write, Rerun's ``disconnect`` can wait forever (after a flush that
+    timed out, as above); the file is refused anyway, so the
     disconnect is left to a daemon thread, and Rerun's exit handler, which would wait on
     the same stuck stream, is unregistered (this sink has closed its stream itself)."""
     import threading
