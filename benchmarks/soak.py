@@ -24,8 +24,6 @@ import json
 import os
 import statistics
 import sys
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -45,25 +43,8 @@ def run(quick: bool = False) -> dict[str, Any]:
     warmup = min(60.0, duration / 4)
     load_before = os.getloadavg()
     traffic = os.environ.get("GLMAV_SOAK_TRAFFIC", "sitl")
-    # the 1-minute load average every 10 s during the run (the machine is shared: the
-    # drop figure only means something next to the load it was measured under)
-    load_1min: list[tuple[float, float]] = []
-    done = threading.Event()
-    t0 = time.monotonic()
-
-    def sample_load() -> None:
-        while not done.wait(10.0):
-            load_1min.append((round(time.monotonic() - t0, 1), os.getloadavg()[0]))
-
-    sampler = threading.Thread(target=sample_load, name="loadavg", daemon=True)
-    sampler.start()
-    try:
-        r = soak(n, duration, warmup, windows=4 if quick else 10, traffic=traffic)
-    finally:
-        done.set()
-        sampler.join()
+    r = soak(n, duration, warmup, windows=4 if quick else 10, traffic=traffic)
     r["loadavg_before"] = load_before
-    r["loadavg_1min_series"] = load_1min
     r["loadavg_after"] = os.getloadavg()
     w = r["latency_windows"]
     p99_first, p99_last = w[0]["p99_ms"], w[-1]["p99_ms"]
@@ -112,7 +93,7 @@ def to_markdown(result: dict[str, Any]) -> str:
     rmse = [v for v in r["max_rmse_active_mps"].values() if v is not None]
     during = [v for _, v in r.get("loadavg_1min_series", [])]
     load_during = (
-        f"; during the run (every 10 s) min {min(during):.1f}, median "
+        f"; during the run (every second) min {min(during):.1f}, median "
         f"{statistics.median(during):.1f}, max {max(during):.1f}"
         if during
         else ""
@@ -143,7 +124,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         if rmse
         else "- Accuracy: no truth",
         "",
-        "Latency by window:",
+        "Latency, kernel drops and the 1-minute load average by window:",
         "",
         format_table(r["rows"]),
         "",
