@@ -173,7 +173,7 @@ def soak(
         t0 = time.perf_counter()
         n = orig_feed(link_id, data, t, datagram=datagram)
         dt = time.perf_counter() - t0
-        k = int((t0 - t_start_pc - warmup_s) * windows / span)
+        k = math.floor((t0 - t_start_pc - warmup_s) * windows / span)  # not int(): -0.5 -> 0
         if 0 <= k < windows:
             hist[k][min(len(_EDGES_S) - 1, bisect.bisect_left(_EDGES_S, dt))] += 1
         return n
