@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import sys
 from pathlib import Path
 from typing import Any
@@ -90,13 +91,20 @@ def to_markdown(result: dict[str, Any]) -> str:
     r = result
     m = r.get("machine") or machine()
     rmse = [v for v in r["max_rmse_active_mps"].values() if v is not None]
+    during = [v for _, v in r.get("loadavg_1min_series", [])]
+    load_during = (
+        f"; during the run (every second) min {min(during):.1f}, median "
+        f"{statistics.median(during):.1f}, max {max(during):.1f}"
+        if during
+        else ""
+    )
     lines = [
         f"Command: `{'GLMAV_SOAK_TRAFFIC=fleet ' if r.get('traffic') == 'fleet' else ''}"
         f"python -m benchmarks.soak{' --quick' if r['quick'] else ''}` — "
         f"{r['n_vehicles']} vehicles × {r['duration_s']:.0f} s in real time, warm-up "
         f"{r['warmup_s']:.0f} s; {m['cpu']}, {m['cores']} cores; load average "
-        f"{r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after (other "
-        "work on the machine competes for the two cores).",
+        f"{r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after"
+        f"{load_during} (other work on the machine competes for the two cores).",
         "",
         format_goals(r["goals"]),
         "",
@@ -116,7 +124,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         if rmse
         else "- Accuracy: no truth",
         "",
-        "Latency by window:",
+        "Latency, kernel drops and the 1-minute load average by window:",
         "",
         format_table(r["rows"]),
         "",

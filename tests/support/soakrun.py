@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import os
 import re
 import socket
 import statistics
@@ -89,6 +90,17 @@ def _hq(counts: list[int], q: float) -> float:
         if acc >= target:
             return _EDGES_S[i]
     return _EDGES_S[-1]
+
+
+def _at(series: list[tuple[float, int]], t: float) -> int:
+    """The last value of a (time, cumulative count) series at or before ``t`` (0 before)."""
+    i = bisect.bisect_right([x for x, _ in series], t)
+    return series[i - 1][1] if i else 0
+
+
+def _median_in(series: list[tuple[float, float]], a: float, b: float) -> float:
+    vals = [v for t, v in series if a <= t < b]
+    return statistics.median(vals) if vals else float("nan")
 
 
 def soak(
@@ -161,7 +173,7 @@ def soak(
         t0 = time.perf_counter()
         n = orig_feed(link_id, data, t, datagram=datagram)
         dt = time.perf_counter() - t0
-        k = int((t0 - t_start_pc - warmup_s) * windows / span)
+        k = math.floor((t0 - t_start_pc - warmup_s) * windows / span)  # not int(): -0.5 -> 0
         if 0 <= k < windows:
             hist[k][min(len(_EDGES_S) - 1, bisect.bisect_left(_EDGES_S, dt))] += 1
         return n
@@ -181,6 +193,10 @@ def soak(
     th = threading.Thread(target=svc.run, args=(links, stop), name="service", daemon=True)
     proc_self = psutil.Process()
     rss: list[tuple[float, int]] = []
+    # kernel drops so far and the 1-minute load average, each second: where the drops
+    # fall against the load of the shared machine
+    drops_series: list[tuple[float, int]] = []
+    load_series: list[tuple[float, float]] = []
     procs: list[subprocess.Popen[str]] = []
     sent = 0
     try:
@@ -202,7 +218,10 @@ def soak(
             )
         t_start = time.monotonic()
         while any(p.poll() is None for p in procs):
-            rss.append((time.monotonic() - t_start, proc_self.memory_info().rss))
+            t_now = time.monotonic() - t_start
+            rss.append((t_now, proc_self.memory_info().rss))
+            drops_series.append((t_now, _udp_drops(ports)))
+            load_series.append((t_now, os.getloadavg()[0]))
             time.sleep(1.0)  # the sampling period of RSS (the flights run meanwhile)
             if time.monotonic() - t_start > duration_s + 120.0:
                 raise TimeoutError("simulators did not finish")
@@ -249,6 +268,8 @@ def soak(
             "from_s": a, "to_s": b, "datagrams": float(sum(hist[k])),
             "p50_ms": _hq(hist[k], 0.5) * 1e3, "p99_ms": _hq(hist[k], 0.99) * 1e3,
             "max_ms": _hq(hist[k], 1.0) * 1e3,
+            "kernel_drops": float(_at(drops_series, b) - _at(drops_series, a)),
+            "load_1min": _median_in(load_series, a, b),
         })  # fmt: skip
     total = [sum(col) for col in zip(*hist, strict=True)]
     rmse = {
@@ -264,6 +285,8 @@ def soak(
         "rss_end_mb": rss_end / 2**20,
         "rss_growth_pct": 100.0 * (rss_end - rss_warm) / rss_warm,
         "rss_series_mb": [(round(t, 1), round(r / 2**20, 2)) for t, r in rss],
+        "kernel_drops_series": [(round(t, 1), d) for t, d in drops_series],
+        "loadavg_1min_series": [(round(t, 1), round(v, 2)) for t, v in load_series],
         "sent_frames": sent,
         "frames_ok": frames_ok,
         "rejected_frames": summary.rejected_frames,

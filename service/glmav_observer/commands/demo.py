@@ -275,6 +275,10 @@ def run_demo(
         partial_rrd.unlink(missing_ok=True)
         raise RuntimeError("the service saw no vehicle: no MAVLink arrived on " + conn)
     if recording is not None and recording.startswith("save:"):
+        # a recording the sink could not finish (a full disk) is removed by the sink
+        rerun_failed = [err for name, err in summary.failed_sinks if name == "RerunSink"]
+        if rerun_failed:
+            raise RuntimeError(rerun_failed[0])  # an earlier good recording stays
         partial_rrd.replace(final_rrd)
         recording = f"save:{final_rrd}"
     sysid = min(summary.vehicles)

@@ -103,6 +103,49 @@ def test_replay_on_a_full_disk_reports_failure_and_the_file_ends_on_a_whole_line
     assert f"({len(lines)} rows, {len(data)} bytes)" in proc.stdout
 
 
+def _replay_rrd(tlog: Path, rrd: Path, limit_bytes: int | None) -> subprocess.CompletedProcess[str]:
+    def limit() -> None:  # in the child, before exec
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of a killed process
+        if limit_bytes is not None:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return subprocess.run(
+        [*OBS, "replay", str(tlog), "--rrd", str(rrd), "--no-progress"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=limit,
+    )
+
+
+def test_replay_rrd_on_a_full_disk_reports_failure_and_leaves_no_file_that_looks_whole(
+    tlog: Path, tmp_path: Path
+) -> None:
+    """Rerun writes the .rrd from its own thread: a failed write there never reached the
+    caller and replay said 0 with a cut file in place. A file-size limit plays the full
+    disk, once early in the recording and once in its last 2 kB (footer and last chunks:
+    Rerun's flush succeeds there, only reading the file back shows it is cut)."""
+    rrd = tmp_path / "out.rrd"
+    ok = _replay_rrd(tlog, rrd, None)
+    assert ok.returncode == 0, ok.stderr
+    whole = rrd.read_bytes()
+    assert [p.name for p in tmp_path.iterdir()] == ["out.rrd"]  # no temporary file left
+    # 1.28 MB measured for this 6 s flight; sizes vary by ~300 B between runs (Rerun's
+    # batching of the text rows), hence a cut 2,000 B before the end
+    for limit_bytes in (len(whole) // 3, len(whole) - 2_000):
+        proc = _replay_rrd(tlog, rrd, limit_bytes)
+        assert proc.returncode == 1, (limit_bytes, proc.stdout, proc.stderr)  # was 0
+        assert f"SINK FAILED: RerunSink: {rrd}: the Rerun recording was not saved: " in (
+            proc.stdout
+        )
+        assert "an earlier file there is left as it was" in proc.stdout
+        assert "an output failed" in proc.stderr and "Traceback" not in proc.stderr
+        # the earlier recording is untouched, and no partial file is left beside it
+        assert rrd.read_bytes() == whole
+        assert [p.name for p in tmp_path.iterdir()] == ["out.rrd"]
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_during_replay_stops_it_with_a_summary_that_says_it_was_cut(
     sig: signal.Signals, tlog: Path, tmp_path: Path

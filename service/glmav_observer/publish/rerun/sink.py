@@ -27,10 +27,12 @@ import logging
 import subprocess
 import threading
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from glmav_observer.publish.rerun.buffer import RecordBuffer
 from glmav_observer.publish.rerun.mode import RerunMode, RerunModeError, parse_rerun_mode
+from glmav_observer.publish.rerun.savefile import disconnect_bounded, finish, flush_file
 from glmav_observer.publish.rerun.send import RerunStats, Sender
 from glmav_observer.publish.rerun.viewer import (
     DEFAULT_FALLBACK_SAVE_PATH,
@@ -71,6 +73,7 @@ class RerunSink:
         grpc_url: str | None = None,
         web_url: str | None = None,
         requested_mode: RerunMode | None = None,
+        save_partial: Path | None = None,
     ) -> None:
         if decimation < 1:
             raise ValueError(f"rerun decimation must be >= 1, got {decimation}")
@@ -87,6 +90,7 @@ class RerunSink:
         self._rec = recording
         self._live = mode.live
         self._web_process = web_process
+        self._save_partial = save_partial
         self._buffer = RecordBuffer(
             self.configs,
             live=mode.live,
@@ -145,10 +149,15 @@ class RerunSink:
         return self._sender.drain(timeout_s)
 
     def close(self, timeout_s: float = 10.0) -> None:
-        """Flush, finish the file or stream, stop the sender thread and the web viewer."""
+        """Flush, finish the file or stream, stop the sender thread and the web viewer.
+
+        ``save``: the file is renamed to its path only if it reads back whole; otherwise
+        :class:`~glmav_observer.publish.rerun.savefile.RrdSaveError` (after the rest is
+        closed), and no file that looks whole is left (``.savefile``)."""
         if self._closed:
             return
         rec, sender = self._rec, self._sender
+        write_error: str | None = None
         if rec is not None and sender is not None:
             with self._lock:
                 for batch in self._buffer.flush(final=True):
@@ -159,13 +168,20 @@ class RerunSink:
             stopped = sender.stop(timeout_s if self._live else None)
             if not stopped:
                 log.warning("rerun: the viewer did not take the data within %.0f s", timeout_s)
+            elif self._save_partial is not None:
+                # a file: flushed while it grows; after a failed write, a bounded disconnect
+                write_error = flush_file(rec, self._save_partial)
+                if write_error is not None:
+                    disconnect_bounded(rec)
+                else:
+                    rec.disconnect()
             else:
                 # a gone viewer: rerun's flush raises after the timeout, and its disconnect
                 # waits up to 5 s more for a last connection attempt, then drops the data
                 try:
-                    rec.flush(timeout_sec=min(timeout_s, 2.0) if self._live else 600.0)
-                except Exception:
-                    log.warning("rerun: flush at close failed", exc_info=True)
+                    rec.flush(timeout_sec=min(timeout_s, 2.0))
+                except Exception as err:
+                    log.warning("rerun: flush at close failed: %s", err)
                 rec.disconnect()
         self._closed = True
         self._rec = None
@@ -173,6 +189,9 @@ class RerunSink:
             stop_process(self._web_process)
             self._web_process = None
         log.info("rerun sink closed (%s): %s", self.mode, self.stats)
+        partial, self._save_partial = self._save_partial, None
+        if partial is not None and self.mode.target is not None:
+            finish(partial, self.mode.target, write_error)
 
     def __enter__(self) -> RerunSink:
         return self
@@ -247,5 +266,6 @@ def open_rerun_sink(
         web_process=opened.web_process,
         grpc_url=opened.grpc_url,
         web_url=opened.web_url,
+        save_partial=opened.save_partial,
         **common,
     )

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from glmav_observer.publish.rerun.mode import RerunMode, RerunModeError
+from glmav_observer.publish.rerun.savefile import partial_path
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -66,6 +67,8 @@ class Opened:
     grpc_url: str | None = None
     web_url: str | None = None
     web_process: subprocess.Popen[bytes] | None = None
+    #: ``save``: the temporary file Rerun writes, renamed to the target when complete
+    save_partial: Path | None = None
 
 
 def stop_process(proc: subprocess.Popen[bytes], timeout_s: float = 5.0) -> None:
@@ -152,7 +155,12 @@ def open_stream(
     elif out.mode.kind == "save":
         assert out.mode.target is not None
         Path(out.mode.target).parent.mkdir(parents=True, exist_ok=True)
-        rec.save(out.mode.target)
+        # written under a temporary name and renamed once complete (.savefile)
+        try:
+            out.save_partial = partial_path(out.mode.target)
+        except OSError as err:
+            raise RerunModeError(f"{out.mode.target}: cannot write: {err.strerror}") from None
+        rec.save(str(out.save_partial))
     return out
 
 
