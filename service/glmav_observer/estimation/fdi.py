@@ -776,11 +776,18 @@ class AxisMonitor:
 
     def ramping(self, t_s: float) -> bool:
         """The residual against the dead reckoning ramps faster than RAMP_LIMIT_MPS2 over
-        the last RAMP_WINDOW_S of a residual isolation: its least-squares slope beyond the
-        limit plus 3σ of its own scatter, and a line fits it better than any single step
-        (a bias that ends is a step, and steepens a line through it)."""
+        the last RAMP_WINDOW_S of a residual isolation while the measurement itself is
+        smooth: its least-squares slope beyond the limit plus 3σ of its own scatter, and a
+        line fits it better than any single step (a bias that ends is a step, and
+        steepens a line through it)."""
         pts = self._ramp
         if len(pts) < 8 or t_s - self._t_isolated_s < RAMP_WINDOW_S:
+            return False
+        # a noise fault's residual can ramp by chance over 1 s (10 samples of a filtered
+        # stream): only a smooth measurement, its own second differences at their healthy
+        # level, lets the ramp be the IMU's
+        own = list(self._d2y_sq)[-len(pts) :]
+        if own and sum(own) / len(own) > self.cfg.noise_ratio_threshold * self.var_d2y_mps2:
             return False
         t = np.fromiter((p[0] for p in pts), dtype=np.float64, count=len(pts))
         r = np.fromiter((p[1] for p in pts), dtype=np.float64, count=len(pts))

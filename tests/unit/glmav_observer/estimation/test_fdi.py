@@ -175,3 +175,14 @@ def test_a_bias_that_ends_is_a_step_not_a_ramp() -> None:
     the single-step fit explains it better."""
     assert not _isolated_axis(lambda t: 1.0 if t < 0.5 else 0.0).ramping(RAMP_WINDOW_S)
     assert not _isolated_axis(lambda t: 0.0 if t < 0.5 else 1.0).ramping(RAMP_WINDOW_S)
+
+
+def test_a_noisy_measurement_is_not_withdrawn_on_a_chance_ramp() -> None:
+    """A noise fault (σ 0.5 m/s at 10 Hz) can draw a steep line over 1 s by chance; the
+    measurement's own second differences are then far above their healthy level
+    (6σ² = 1.5 against 6 · 0.05² = 0.015), and a noisy measurement is never the IMU's
+    ramp."""
+    ax = _isolated_axis(lambda t: 0.5 + 1.0 * t)
+    assert ax.ramping(RAMP_WINDOW_S)  # smooth (no second differences recorded yet)
+    ax._d2y_sq.extend([1.5] * len(ax._ramp))
+    assert not ax.ramping(RAMP_WINDOW_S)
