@@ -1,5 +1,9 @@
-"""The soak in its CI form: 10 simulated vehicles for 60 s into one service over UDP.
+"""The soak in its CI form: 10 vehicles for 60 s into one service over UDP.
 
+The traffic is one ``glmav-sitl fleet`` process replaying a recorded simulator flight as
+10 system ids (issue 18: on a 2-core machine ten simulator processes compete with the
+service, and the kernel then dropped 25 % of the datagrams in bursts, which measured the
+machine, not the service; one climbing-turn vehicle reached 0.12 m/s on the thinned data).
 The record (10 minutes) is ``python -m benchmarks.soak`` (docs/benchmarks/soak.md).
 """
 
@@ -13,7 +17,7 @@ from support.soakrun import soak
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_ten_vehicles_for_a_minute_memory_counts_latency() -> None:
-    r = soak(n_vehicles=10, duration_s=60.0, warmup_s=20.0, windows=2)
+    r = soak(n_vehicles=10, duration_s=60.0, warmup_s=20.0, windows=2, traffic="fleet")
     assert r["vehicles"] == list(range(1, 11))
     # in = out, exactly: every sample out of ingest reached its estimator, every record
     # its sink, every frame sent was decoded or dropped by the kernel (counted)
@@ -28,7 +32,7 @@ def test_ten_vehicles_for_a_minute_memory_counts_latency() -> None:
     # 20 ms, the scheduling noise of a shared 2-core machine), not growing with time
     w = r["latency_windows"]
     assert w[1]["p99_ms"] <= max(3.0 * w[0]["p99_ms"], 20.0), w
-    # every vehicle estimated (a lossy receive buffer thins the data; 0.1 m/s is the
-    # healthy-flight bound, docs/reliability.md shows 20 % loss costs ~0.01 m/s)
+    # every vehicle estimated: 0.1 m/s is the healthy-flight bound (measured 0.033 for
+    # each of the 10 replays of the cruise, 0 kernel drops at load 2)
     for sysid, rmse in r["max_rmse_active_mps"].items():
         assert rmse is not None and rmse <= 0.1, (sysid, rmse)
