@@ -21,21 +21,11 @@ from glmav_observer.app import replay_tlog
 from glmav_observer.cli import main
 from glmav_observer.config import ServiceConfig
 from glmav_observer.publish.file_sink import FileSink
-from glmav_observer.records import HealthRecord, Record
+from glmav_observer.records import HealthRecord
 from support.fuzzgen import sitl_stream
+from support.sinks import MemorySink
 
 OBS = [sys.executable, "-m", "glmav_observer.cli"]
-
-
-class _Memory:
-    def __init__(self) -> None:
-        self.records: list[Record] = []
-
-    def write(self, record: Record) -> None:
-        self.records.append(record)
-
-    def close(self) -> None:
-        pass
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +47,8 @@ def test_a_full_disk_isolates_the_file_sink_and_the_others_go_on(
     It used to raise out of the pipeline (serve: rc 1, Zenoh and Rerun stopped)."""
     full = tmp_path / "full.jsonl"
     full.symlink_to("/dev/full")
-    memory = _Memory()
-    clean = _Memory()
+    memory = MemorySink()
+    clean = MemorySink()
     summary = replay_tlog(tlog, ServiceConfig(), [FileSink(full), memory])
     replay_tlog(tlog, ServiceConfig(), [clean])
     assert [name for name, _ in summary.failed_sinks] == ["FileSink"]

@@ -12,17 +12,7 @@ from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.framing import FrameDecoder
 from glmav_observer.records import HealthRecord, Record, VelocityRecord, flatten
 from support.fuzzgen import sitl_stream
-
-
-class _Memory:
-    def __init__(self) -> None:
-        self.records: list[Record] = []
-
-    def write(self, record: Record) -> None:
-        self.records.append(record)
-
-    def close(self) -> None:
-        pass
+from support.sinks import MemorySink
 
 
 def _t_s(msg: Any) -> float | None:
@@ -56,7 +46,7 @@ def test_one_frame_29_s_ahead_changes_no_record() -> None:
     outlier = bytes(dialect.MAVLink_attitude_message(3000 + 29_000, 0, 0, 0, 0, 0, 0).pack(mav))
     runs = []
     for stream in (frames, [*frames[: len(frames) // 2], outlier, *frames[len(frames) // 2 :]]):
-        sink = _Memory()
+        sink = MemorySink()
         svc = Service(ServiceConfig(request_rates=False), [sink])
         for i, f in enumerate(stream):
             svc.feed_bytes("udp", f, 0.0004 * i)
@@ -78,7 +68,7 @@ def test_two_sources_with_one_sysid_raise_conflicting_sources_and_stop_estimatio
     b = [(t - 7.0, f) for t, f in _timed(sitl_stream("hover", 12.0, seed=7).frames) if t >= 10.0]
     b = [(t, f) for t, f in b if t < 5.0]  # B heard from A's 3 s to 5 s
     merged = sorted(a + b, key=lambda tf: tf[0])
-    sink = _Memory()
+    sink = MemorySink()
     svc = Service(ServiceConfig(request_rates=False), [sink])
     conflict_at: list[tuple[float, bool]] = []
     state = False

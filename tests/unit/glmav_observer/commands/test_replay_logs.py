@@ -15,22 +15,12 @@ from glmav_observer.cli import main as cli_main
 from glmav_observer.config import load_config
 from glmav_observer.ingest.logfiles import read_streams
 from glmav_observer.publish.schema import validate
-from glmav_observer.records import Record, ReferenceRecord
-
-
-class _Memory:
-    def __init__(self) -> None:
-        self.records: list[Record] = []
-
-    def write(self, record: Record) -> None:
-        self.records.append(record)
-
-    def close(self) -> None:
-        pass
+from glmav_observer.records import ReferenceRecord
+from support.sinks import MemorySink
 
 
 def test_ekf_velocity_replay_tracks_the_simulator_truth(public_logs: dict[str, Path]) -> None:
-    sink = _Memory()
+    sink = MemorySink()
     s = replay_flight_log(
         public_logs["dataflash"], load_config(None), [sink], velocity_source="ekf"
     )
