@@ -132,7 +132,9 @@ def test_demo_on_the_autopilot_sensor_profile(tmp_path: Path) -> None:
     # the first biased sample is up to 0.1 s (10 Hz) + 0.15 s (lag) late, and the bias
     # test needs 3 failing samples (0.2 s more at 10 Hz): bound 0.75 s (measured 0.40)
     assert 0.0 <= float(iso.group(4)) <= 0.75, out
-    assert "also isolated" not in out, out
+    # no other velocity axis (an accelerometer event, axis "body", isolates nothing: the
+    # take-off on the profile's vibrating IMU reported one at 4.1 s in 1 run of 9)
+    assert re.search(r"also isolated: axis [ned] ", out) is None, out
     switches = re.findall(r"switch: (\w+) -> (\w+) at t = ([\d.]+) s \((\w+)\), jump ([\d.]+)", out)
     # No wrong call before the fault (the take-off's acceleration on a 150 ms late GPS
     # used to read as a bias on d for 1-3 s): the hand-over at the fault and the way back
