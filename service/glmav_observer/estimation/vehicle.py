@@ -397,14 +397,15 @@ class VehicleEstimator:
             # the residual tests cannot arm: said in health (counter, axis_state "warmup")
             # and in the replay/serve summary
             self.counters["fdi_off_imu_too_slow"] += 1
-        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, self._ints(), imu_hz)
+        ints = self._ints()
+        verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, ints, imu_hz)
         if t > self._t_y_s:  # running mean of the measurement interval (time constant 20 samples)
             dt_y = min(t - self._t_y_s, self.cfg.max_gap_s)
             if self._y_interval_s == 0.0:
                 self._y_interval_s = dt_y  # the first interval seeds the mean
             else:
                 self._y_interval_s += 0.05 * (dt_y - self._y_interval_s)
-        self._y = self._lag_compensated(s.v_ned_mps)
+        self._y = self._lag_compensated(s.v_ned_mps, ints[2])
         self._t_y_s = t
         self._a_int_at_y = list(self._a_int)
         self._b_int_at_y = list(self._b_int)
@@ -418,7 +419,7 @@ class VehicleEstimator:
         if self.cfg.adapt_gamma_full and self._n_meas % GAMMA_UPDATE_SAMPLES == 0:
             self._adapt_gamma_full(imu_hz)
 
-    def _lag_compensated(self, y_ned_mps: Vec3) -> list[float]:
+    def _lag_compensated(self, y_ned_mps: Vec3, l_now: tuple[float, float, float]) -> list[float]:
         """The measurement moved to the present by the fit's *observed* lag d̂ (|d̂| > 2σ,
         bounded to [0, max_lag_s]): v(t) ≈ y(t) + d̂ L(t) (fdi module docstring), with
         ``compensate_lag``; else y itself."""
@@ -431,7 +432,6 @@ class VehicleEstimator:
         lag_s = ref.observed(LAG)
         if lag_s <= 0.0:
             return y
-        l_now = self._ints()[2]
         return [y[i] + lag_s * l_now[i] for i in range(3)]
 
     def _adapt_gamma_full(self, imu_hz: float) -> None:
@@ -685,8 +685,7 @@ class VehicleEstimator:
         dpsi = ref.observed(6)
         if dpsi == 0.0:
             return 0.0
-        _, c_int, _ = self._ints()
-        return (c_int[j] - h[1][j]) * dpsi
+        return (self._c_int[j] - h[1][j]) * dpsi
 
     def _health(self, t: float, out: list[Record]) -> None:
         if self._next_health_s is None or t < self._next_health_s:
