@@ -182,6 +182,8 @@ def run_demo(
     subscriber: Any = None
     link: Link | None = None
     service: Service | None = None
+    worker: threading.Thread | None = None
+    stop = threading.Event()
     try:
         if zenoh:
             sinks += open_sinks(config, zenoh_enabled=True, rerun_mode="off")
@@ -208,7 +210,6 @@ def run_demo(
         conn = f"udpin:127.0.0.1:{port}"
         link = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
         service = Service(config, sinks)
-        stop = threading.Event()
         worker = threading.Thread(
             target=service.run, args=({conn: link}, stop), name="demo-service", daemon=True
         )
@@ -259,6 +260,11 @@ def run_demo(
         worker.join(timeout=5.0)
         ok = True
     finally:
+        # the service thread stops before its link closes (a failed simulator raises above
+        # with the thread still reading: closing under it was an EBADF traceback)
+        if worker is not None:
+            stop.set()
+            worker.join(timeout=5.0)
         if subscriber is not None:
             subscriber.undeclare()
         if link is not None:

@@ -127,6 +127,7 @@ class Link:
         #: a TCP client link (``tcp:HOST:PORT``) reconnects on EOF or error, with backoff
         self.reconnects = conn.startswith("tcp:")
         self._down = False
+        self._closed = False
         self._retry_at = 0.0
         self._backoff_s = RECONNECT_FIRST_S
 
@@ -218,6 +219,8 @@ class Link:
             except ConnectionRefusedError:
                 return b""
             except OSError as err:
+                if self._closed:
+                    return b""  # closed by another thread while reading: nothing more comes
                 if self.reconnects:
                     return self._disconnected(str(err))
                 raise
@@ -240,6 +243,7 @@ class Link:
             logger.warning("link write failed", extra={"link": self.conn, "error": str(err)})
 
     def close(self) -> None:
+        self._closed = True
         if self._sock is not None:
             self._sock.close()
         if self._m is not None:
