@@ -89,6 +89,8 @@ class VehicleClock:
     #: host time of each recent off-timeline sample (for ``conflicting``)
     _off_timeline: collections.deque[float] = field(default_factory=collections.deque)
     _last_off_t_s: float | None = None
+    #: host time of the sample that set ``t_now_s`` (None: not known, e.g. no host clock)
+    _t_host_at_now_s: float | None = None
     #: two sources seem to share this system id (see the module docstring)
     conflicting: bool = False
 
@@ -97,11 +99,25 @@ class VehicleClock:
         if time_unix_usec > EPOCH_THRESHOLD_US:
             self.epoch_offset_us = int(time_unix_usec) - int(time_boot_ms) * 1000
 
-    def to_boot_s(self, t_us: int, kind: TimeKind) -> float | None:
-        """Vehicle boot time of a raw stamp; None if it cannot be mapped yet (counted)."""
+    def to_boot_s(self, t_us: int, kind: TimeKind, t_host_s: float | None = None) -> float | None:
+        """Vehicle boot time of a raw stamp; None if it cannot be mapped yet (counted).
+
+        An untimed message (SIM_STATE) takes the vehicle's latest time, unless more than
+        ``gap_s`` of host time (``t_host_s``, arrival) has passed since the sample that set
+        it: after an outage the first untimed message arrives before the first stamped one,
+        and the latest time is then the time before the outage (a truth sample of 5.5 s
+        stamped 4.0 s, 1.6 m/s off the estimate it was compared with). It is dropped
+        (``untimed_stale``): its vehicle time is not known."""
         if kind is TimeKind.NONE:
             if self.t_now_s is None:
                 self.counters["untimed_before_clock"] += 1  # SIM_STATE before any stamp
+            elif (
+                t_host_s is not None
+                and self._t_host_at_now_s is not None
+                and t_host_s - self._t_host_at_now_s > self.config.gap_s
+            ):
+                self.counters["untimed_stale"] += 1
+                return None
             return self.t_now_s
         if kind is TimeKind.USEC and t_us > EPOCH_THRESHOLD_US:
             self.counters["epoch_time_samples"] += 1
@@ -121,7 +137,7 @@ class VehicleClock:
         cfg = self.config
         now = self.t_now_s
         if now is None:
-            self._adopt(stream, t_s)
+            self._adopt(stream, t_s, t_host_s)
             return Admission.ACCEPT
         if t_s < now - cfg.reset_backwards_s or t_s > now + cfg.confirm_forward_s:
             last_off, self._last_off_t_s = self._last_off_t_s, t_s
@@ -138,13 +154,13 @@ class VehicleClock:
                 if now < t_s <= now + cfg.jump_forward_s:  # an outage: same timeline, a gap
                     self.counters["gap"] += 1
                     self.gaps.append((now, t_s))
-                    self._adopt(stream, t_s)
+                    self._adopt(stream, t_s, t_host_s)
                     return Admission.ACCEPT
                 self.counters["clock_reset" if t_s < now else "clock_jump"] += 1
                 self._last_t_by_stream.clear()
                 self.t_now_s = None
                 self.epoch_offset_us = None
-                self._adopt(stream, t_s)
+                self._adopt(stream, t_s, t_host_s)
                 return Admission.RESET
             self.counters["time_backwards" if t_s < now else "time_jump"] += 1
             return Admission.PENDING
@@ -165,7 +181,7 @@ class VehicleClock:
                 self._last_t_by_stream.clear()
                 self.t_now_s = None
                 self.epoch_offset_us = None
-                self._adopt(stream, t_s)
+                self._adopt(stream, t_s, t_host_s)
                 return Admission.RESET
             self.counters["late"] += 1
             return Admission.LATE
@@ -181,7 +197,7 @@ class VehicleClock:
             if t_s - now > cfg.gap_s:
                 self.counters["gap"] += 1
                 self.gaps.append((now, t_s))
-            self._adopt(stream, t_s)
+            self._adopt(stream, t_s, t_host_s)
             return Admission.ACCEPT
         self.counters["reordered"] += 1
         self._last_t_by_stream[stream] = t_s
@@ -197,6 +213,7 @@ class VehicleClock:
             self.conflicting = True
             self.counters["conflicting_sources"] += 1
 
-    def _adopt(self, stream: str, t_s: float) -> None:
+    def _adopt(self, stream: str, t_s: float, t_host_s: float | None = None) -> None:
         self.t_now_s = t_s
+        self._t_host_at_now_s = t_host_s
         self._last_t_by_stream[stream] = t_s

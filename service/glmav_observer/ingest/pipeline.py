@@ -196,7 +196,7 @@ class Ingest:
         v.t_host_last_s = t_host_s
         v.counters[f"rx_{name}"] += 1
         t_us, kind = message_time_us(msg)
-        t_s = v.clock.to_boot_s(t_us, kind)
+        t_s = v.clock.to_boot_s(t_us, kind, t_host_s)
         if t_s is None:
             return events
         src = _IMU_SOURCE.get(name)

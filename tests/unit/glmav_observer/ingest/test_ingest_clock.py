@@ -146,3 +146,28 @@ def test_two_sources_with_one_system_id_are_flagged_until_one_remains() -> None:
     for k in range(10):
         r.admit("IMU", 0.1 + 0.004 * k, 0.4 + 0.004 * k)
     assert r.counters["clock_reset"] == 1 and not r.conflicting
+
+
+def test_an_untimed_message_after_an_outage_is_not_stamped_with_the_time_before_it() -> None:
+    """SIM_STATE has no time field: it takes the vehicle's latest time. After a 1.5 s outage
+    the first SIM_STATE arrives before the first stamped message, when the latest time is
+    still the one before the outage: it would be stamped 1.5 s early (the truth of 5.5 s
+    compared with the estimate of 4.0 s, 1.6 m/s off in an accelerating cruise)."""
+    c = _clock(gap_s=0.5, confirm_samples=2)
+    t_host = 1000.0
+    for k in range(5):  # 250 Hz stamped, arriving in real time
+        c.admit("IMU", 3.98 + 0.004 * k, t_host + 0.004 * k)
+    t_host += 0.016
+    assert c.to_boot_s(0, TimeKind.NONE, t_host + 0.01) == 3.996  # 10 ms later: fine
+    # 0.5 s of host time is the gap threshold: within it the latest time is used
+    assert c.to_boot_s(0, TimeKind.NONE, t_host + 0.49) == 3.996
+    # the outage: 1.5 s later the untimed message comes first and is dropped, counted
+    assert c.to_boot_s(0, TimeKind.NONE, t_host + 1.5) is None
+    assert c.counters["untimed_stale"] == 1
+    # the stamped stream resumes (a gap, confirmed by 2 samples): untimed is stamped again
+    c.admit("IMU", 5.52, t_host + 1.51)
+    assert c.admit("IMU", 5.524, t_host + 1.514) is Admission.ACCEPT
+    assert c.counters["gap"] == 1
+    assert c.to_boot_s(0, TimeKind.NONE, t_host + 1.515) == 5.524
+    # without a host clock (an offline source that has none) nothing changes
+    assert c.to_boot_s(0, TimeKind.NONE) == 5.524
