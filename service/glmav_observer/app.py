@@ -722,8 +722,12 @@ def open_sinks(
     zenoh_enabled: bool | None = None,
     rerun_mode: str | None = None,
     recording_name: str | None = None,
+    rerun_fallback_save_path: str | None = None,
 ) -> list[Sink]:
-    """The sinks asked for by the config and the command line (closed by the caller)."""
+    """The sinks asked for by the config and the command line (closed by the caller).
+
+    ``rerun_fallback_save_path``: ``--rerun spawn`` without a display saves there instead
+    (None: the Rerun sink's default)."""
     sinks: list[Sink] = []
     try:
         path = out if out is not None else config.out
@@ -750,7 +754,11 @@ def open_sinks(
         mode = rerun_mode if rerun_mode is not None else config.rerun.mode
         if mode != "off":
             from glmav_observer.publish.rerun import open_rerun_sink
-            from glmav_observer.publish.rerun.viewer import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+            from glmav_observer.publish.rerun.viewer import (
+                DEFAULT_FALLBACK_SAVE_PATH,
+                DEFAULT_GRPC_PORT,
+                DEFAULT_WEB_PORT,
+            )
 
             if mode.startswith("save:"):
                 check_output_file(mode.removeprefix("save:"))
@@ -764,6 +772,7 @@ def open_sinks(
                     decimation=config.rerun.decimation,
                     serve_bind=config.rerun.serve_bind,
                     recording_name=recording_name,
+                    fallback_save_path=rerun_fallback_save_path or DEFAULT_FALLBACK_SAVE_PATH,
                 )
             )
     except BaseException:
@@ -781,10 +790,13 @@ def serve(
     stop_event: threading.Event | None = None,
     *,
     service: Service | None = None,
+    ready: threading.Event | None = None,
 ) -> ServiceSummary:
     """Open ``links``, serve until SIGINT/SIGTERM (or ``stop_event``), close everything.
 
-    ``service``: a Service built by the caller over ``sinks`` (e.g. a claiming one)."""
+    ``service``: a Service built by the caller over ``sinks`` (e.g. a claiming one).
+    ``ready`` is set once every link is open (a caller in another thread may then start
+    the traffic: nothing sent to a UDP port before it is bound arrives)."""
     stop = stop_event if stop_event is not None else threading.Event()
     opened: dict[str, Link] = {}
     service = service if service is not None else Service(config, sinks)
@@ -801,6 +813,8 @@ def serve(
         for conn in links:
             opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
             logger.info("link open", extra={"link": conn})
+        if ready is not None:
+            ready.set()
         service.run(opened, stop)
     finally:
         for signum, handler in previous.items():

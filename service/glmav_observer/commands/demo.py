@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table
+from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table, serve
 from glmav_observer.commands.demo_mission import MissionLog, fly
 from glmav_observer.config import ConfigError, ServiceConfig, load_config
-from glmav_observer.ingest.links import Link
 from glmav_observer.publish.sink import Sink
+from glmav_observer.publish.zenoh_sink import ZenohSink
 
 logger = logging.getLogger(__name__)
 
@@ -122,20 +122,6 @@ def _free_udp_port() -> int:
         return port
 
 
-def _open_rerun(mode: str, rrd_path: str, config: ServiceConfig) -> Sink | None:
-    if mode == "off":
-        return None
-    from glmav_observer.publish.rerun import open_rerun_sink
-
-    return open_rerun_sink(
-        mode,
-        decimation=config.rerun.decimation,
-        serve_bind=config.rerun.serve_bind,
-        recording_name="glmav-observer demo",
-        fallback_save_path=rrd_path,
-    )
-
-
 def run_demo(
     *,
     duration_s: float = 25.0,
@@ -180,40 +166,59 @@ def run_demo(
     sinks: list[Sink] = []
     received = [0]
     subscriber: Any = None
-    link: Link | None = None
     service: Service | None = None
     worker: threading.Thread | None = None
     stop = threading.Event()
+    failure: list[BaseException] = []
+    port, gcs_port = _free_udp_port(), _free_udp_port()
+    conn = f"udpin:127.0.0.1:{port}"
     try:
-        if zenoh:
-            sinks += open_sinks(config, zenoh_enabled=True, rerun_mode="off")
+        # composed as `serve` composes it (app.open_sinks, app.serve): no file output
+        sinks = open_sinks(
+            config,
+            out="",
+            zenoh_enabled=zenoh,
+            rerun_mode=rerun_mode,
+            recording_name="glmav-observer demo",
+            rerun_fallback_save_path=str(partial_rrd),
+        )
+        zenoh_sink = next((s for s in sinks if isinstance(s, ZenohSink)), None) if zenoh else None
+        if zenoh_sink is not None:
             # a subscriber on the sink's own session: proof that records leave on Zenoh
-            session = sinks[-1].session  # type: ignore[attr-defined]
-
             def count(_sample: Any) -> None:
                 received[0] += 1
 
-            prefix = config.zenoh.prefix
-            subscriber = session.declare_subscriber(f"{prefix}/*/velocity/**", count)
-        rerun_sink = _open_rerun(rerun_mode, str(partial_rrd), config)
+            subscriber = zenoh_sink.session.declare_subscriber(
+                f"{config.zenoh.prefix}/*/velocity/**", count
+            )
         recording: str | None = None
         live_viewer = False
-        if rerun_sink is not None:
-            sinks.append(rerun_sink)
-            recording = rerun_sink.effective_mode  # type: ignore[attr-defined]
+        if rerun_mode != "off":
+            from glmav_observer.publish.rerun import RerunSink
+
+            rerun_sink = next(s for s in sinks if isinstance(s, RerunSink))
+            recording = rerun_sink.effective_mode
             live_viewer = not recording.startswith("save:")
         sim_speed = (
             ("realtime" if live_viewer else str(AUTO_SPEED_FACTOR)) if speed == "auto" else speed
         )
-
-        port, gcs_port = _free_udp_port(), _free_udp_port()
-        conn = f"udpin:127.0.0.1:{port}"
-        link = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
         service = Service(config, sinks)
+        ready = threading.Event()
+
+        def serve_until_stopped(svc: Service) -> None:
+            try:
+                serve(config, sinks, [conn], stop, service=svc, ready=ready)
+            except BaseException as err:  # reported by the caller, not as a thread traceback
+                failure.append(err)
+                ready.set()
+
         worker = threading.Thread(
-            target=service.run, args=({conn: link}, stop), name="demo-service", daemon=True
+            target=serve_until_stopped, args=(service,), name="demo-service", daemon=True
         )
         worker.start()
+        ready.wait(10.0)
+        if failure:
+            raise RuntimeError(f"the service could not start on {conn}: {failure[0]}")
         # the ground station: MAVSDK listening for the simulator on its own port
         mission_stop, listening = threading.Event(), threading.Event()
         flight = threading.Thread(
@@ -256,26 +261,22 @@ def run_demo(
             elif time.monotonic() - quiet_since >= DRAIN_QUIET_S:
                 break
             stop.wait(0.05)
-        stop.set()
-        worker.join(timeout=5.0)
         ok = True
     finally:
-        # the service thread stops before its link closes (a failed simulator raises above
-        # with the thread still reading: closing under it was an EBADF traceback)
+        # the service thread stops (app.serve closes its link and the sinks) before
+        # anything it uses goes away
+        stop.set()
         if worker is not None:
-            stop.set()
-            worker.join(timeout=5.0)
+            worker.join(timeout=10.0)
         if subscriber is not None:
             subscriber.undeclare()
-        if link is not None:
-            link.close()
-        if service is not None:
-            service.close()
-        else:
+        if service is None or worker is None:
             for s in sinks:
                 s.close()
         if not ok:
             partial_rrd.unlink(missing_ok=True)  # an earlier good recording stays
+    if failure:
+        raise RuntimeError(f"the service failed: {failure[0]}")
     summary = service.summary()
     if not summary.vehicles:
         partial_rrd.unlink(missing_ok=True)
