@@ -11,7 +11,8 @@ rather than entities of their own, and the flush period (live) or the rows per f
 The estimates of one estimator update (every configuration and the active one, at one
 vehicle time) form one row; live modes keep every ``decimation``-th update. Errors
 against truth are computed at the estimate times with the truth linearly interpolated
-(:func:`interpolate_truth`). Health records also give the status document and the
+(:func:`glmav_observer.evaluation.interpolate_truth`: the project's one definition of
+the error against truth). Health records also give the status document and the
 event log: isolations, recoveries, switches, and fault detection arming (an axis leaves
 the ``warmup`` state) or not arming within ``arming_timeout_s``.
 """
@@ -26,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from glmav_observer.estimation.observer import e_exact
+from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.publish.rerun.paths import (
     AXIS_STATE_INDEX,
     BODY_AXES,
@@ -137,44 +139,6 @@ def quaternion_xyzw(euler_rad: Sequence[float]) -> tuple[float, float, float, fl
         cf * ct * sp - sf * st * cp,
         cf * ct * cp + sf * st * sp,
     )
-
-
-def interpolate_truth(
-    t_est_s: npt.ArrayLike,
-    t_truth_s: npt.ArrayLike,
-    v_truth: npt.ArrayLike,
-    *,
-    max_gap_s: float,
-) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
-    """Truth at estimate times by linear interpolation between bracketing truth samples.
-
-    ``t_truth_s`` ascending (N,), ``v_truth`` (N, k). Returns ``(ok, v)``: ``ok[i]`` is
-    True when ``t_est_s[i]`` lies within [t_truth[0], t_truth[-1]] and the bracketing
-    samples are at most ``max_gap_s`` apart (no interpolation across a truth dropout);
-    ``v[ok]`` the interpolated truth (rows with ``ok`` False are NaN).
-    """
-    t_e = np.asarray(t_est_s, dtype=np.float64)
-    t_t = np.asarray(t_truth_s, dtype=np.float64)
-    v_t = np.asarray(v_truth, dtype=np.float64)
-    if v_t.ndim == 1:
-        v_t = v_t[:, None]
-    out = np.full((len(t_e), v_t.shape[1]), np.nan)
-    ok = np.zeros(len(t_e), dtype=bool)
-    if len(t_t) == 0 or len(t_e) == 0:
-        return ok, out
-    hi = np.searchsorted(t_t, t_e, side="left")  # first truth sample at or after t_est
-    exact = (hi < len(t_t)) & (t_t[np.minimum(hi, len(t_t) - 1)] == t_e)
-    inside = (hi > 0) & (hi < len(t_t))
-    lo = np.clip(hi - 1, 0, len(t_t) - 1)
-    hi_c = np.clip(hi, 0, len(t_t) - 1)
-    gap = t_t[hi_c] - t_t[lo]
-    inside &= gap <= max_gap_s
-    ok = inside | exact
-    w = np.where(gap > 0, (t_e - t_t[lo]) / np.where(gap > 0, gap, 1.0), 0.0)
-    interp = v_t[lo] + w[:, None] * (v_t[hi_c] - v_t[lo])
-    interp[exact] = v_t[hi_c[exact]]
-    out[ok] = interp[ok]
-    return ok, out
 
 
 # --------------------------------------------------------------------------- status

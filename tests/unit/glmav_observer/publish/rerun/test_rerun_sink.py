@@ -20,7 +20,6 @@ from glmav_observer.publish.rerun import (
     RerunModeError,
     RerunSink,
     build_blueprint,
-    interpolate_truth,
     open_rerun_sink,
     parse_rerun_mode,
     quaternion_xyzw,
@@ -123,21 +122,6 @@ def test_rotation_is_e_of_13_and_matches_quaternion() -> None:
             ]
         )
         np.testing.assert_allclose(q, m, atol=1e-14)  # same rotation, float round-off only
-
-
-def test_interpolate_truth() -> None:
-    t_truth = np.array([0.0, 0.02, 0.04, 0.30, 0.32])  # a 0.26 s dropout after 0.04
-    v_truth = np.column_stack([3.0 * t_truth + 1.0, -t_truth])
-    t_est = np.array([-0.01, 0.0, 0.005, 0.02, 0.039, 0.1, 0.31, 0.33])
-    ok, v = interpolate_truth(t_est, t_truth, v_truth, max_gap_s=0.1)
-    # before the first sample, inside the dropout and after the last: no truth
-    assert ok.tolist() == [False, True, True, True, True, False, True, False]
-    # a linear truth is reproduced exactly (float round-off only)
-    np.testing.assert_allclose(v[ok, 0], 3.0 * t_est[ok] + 1.0, rtol=0, atol=1e-14)
-    np.testing.assert_allclose(v[ok, 1], -t_est[ok], rtol=0, atol=1e-15)
-    assert np.isnan(v[~ok]).all()
-    ok, _ = interpolate_truth(t_est, t_truth[:0], v_truth[:0], max_gap_s=0.1)
-    assert not ok.any()
 
 
 def test_blueprint_has_one_tab_per_vehicle() -> None:
