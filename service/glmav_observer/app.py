@@ -33,6 +33,7 @@ from typing import Any
 
 from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.vehicle import VehicleEstimator
+from glmav_observer.evaluation import TRUTH_MAX_GAP_S, TruthScorer
 from glmav_observer.ingest.framing import (
     FrameCounters,
     FrameDecoder,
@@ -42,6 +43,7 @@ from glmav_observer.ingest.framing import (
 )
 from glmav_observer.ingest.links import Link
 from glmav_observer.ingest.pipeline import (
+    IMU_MESSAGE_IDS,
     Ingest,
     IngestEvent,
     NewVehicle,
@@ -204,6 +206,8 @@ class Service:
         self._closed = False
         self.on_records: Callable[[list[Record]], None] | None = None
         self._links: dict[str, Link] = {}
+        #: per vehicle: its estimates scored against truth, where truth comes (the summary)
+        self._scorers: dict[int, TruthScorer] = {}
 
     # ------------------------------------------------------------------ input
     def decoder(self, link_id: str, *, datagram: bool = True) -> FrameDecoder:
@@ -214,6 +218,8 @@ class Service:
                 signing_key=self.config.signing_key,
                 signing_state=self.signing,
             )
+            # superseded IMU frames are counted without being decoded (same counters)
+            dec.set_prefilter(self.ingest.skip_superseded, IMU_MESSAGE_IDS)
         return dec
 
     def feed_bytes(
@@ -221,8 +227,11 @@ class Service:
     ) -> int:
         """Bytes received on ``link_id`` (one datagram, or a chunk of a stream)."""
         n = 0
-        for msg in self.decoder(link_id, datagram=datagram).feed(data):
+        dec = self.decoder(link_id, datagram=datagram)
+        skipped = dec.prefiltered
+        for msg in dec.feed(data, t_arrival_s):
             n += self.feed_message(msg, t_arrival_s, link_id)
+        self.messages += dec.prefiltered - skipped
         return n
 
     def feed_message(self, msg: Any, t_arrival_s: float, link_id: str = "") -> int:
@@ -299,6 +308,12 @@ class Service:
 
     def _publish(self, records: list[Record]) -> None:
         self.records += len(records)
+        scorers = self._scorers
+        for r in records:
+            sc = scorers.get(r.sysid)
+            if sc is None:
+                sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
+            sc.add(r)
         for sink in list(self.sinks):
             try:
                 for r in records:
@@ -422,14 +437,13 @@ class Service:
     def summary(self) -> ServiceSummary:
         vehicles: dict[int, VehicleSummary] = {}
         for sysid, est in sorted({**self._retired, **self.estimators}.items()):
+            scorer = self._scorers.get(sysid) or TruthScorer()
+            scored, worst = scorer.rmse(), scorer.max_abs()
             vehicles[sysid] = VehicleSummary(
                 sysid=sysid,
-                rmse_ned_mps=est.rmse_ned_mps(),
-                max_abs_error_ned_mps={
-                    c: (tuple(st.max_abs) if st.n else None)  # type: ignore[misc]
-                    for c, st in est.errors.items()
-                },
-                truth_samples=est.errors["full"].n,
+                rmse_ned_mps={c: scored.get(c) for c in (*CONFIGS, "active")},
+                max_abs_error_ned_mps={c: worst.get(c) for c in (*CONFIGS, "active")},
+                truth_samples=scorer.truth_samples,
                 faults=[f.to_dict() for f in est.faults],
                 switches=[s.to_dict() for s in est.switches],
                 counters=dict(sorted(est.counters.items())),
@@ -600,7 +614,8 @@ def replay_flight_log(
     Raises :class:`~glmav_observer.ingest.logfiles.LogError` for a log it cannot read (the
     sinks are closed then too). Deterministic: the samples are sorted by time of validity.
     """
-    from glmav_observer.estimation.vehicle import ErrorStats
+    import numpy as np
+
     from glmav_observer.ingest.logfiles import LOG_SYSID, VELOCITY_SOURCES, read_flight_log
     from glmav_observer.ingest.rates import RateMonitor
     from glmav_observer.ingest.samples import TruthSample
@@ -619,9 +634,14 @@ def replay_flight_log(
         ref_source = log.streams.sources.get("ekf", "ekf")
         t_ref = log.t_reference_s.tolist()
         v_ref = log.v_reference_ned_mps.tolist()
-        ref_err = {c: ErrorStats() for c in (*CONFIGS, "active")}
-        latest: dict[str, tuple[float, float, float]] = {}
-        skip_s = config.estimation.metrics_skip_s
+        # the estimates against the log's own estimator (its EKF), by the definition
+        # against truth (evaluation.TruthScorer), with the bracket allowed to span three
+        # of the reference's intervals (an EKF output can come at 10 Hz)
+        ref_dt_s = float(np.median(np.diff(t_ref))) if len(t_ref) > 1 else 0.0
+        ref_err = TruthScorer(
+            skip_s=config.estimation.metrics_skip_s,
+            max_gap_s=max(TRUTH_MAX_GAP_S, 3.0 * ref_dt_s),
+        )
         names = {"AttitudeSample": "attitude", "ImuSample": "imu", "VelocitySample": "velocity"}
         n = len(log.samples)
         step = max(1, n // 200)
@@ -633,9 +653,7 @@ def replay_flight_log(
             while i_ref < len(t_ref) and t_ref[i_ref] <= t:
                 tr, vr = t_ref[i_ref], v_ref[i_ref]
                 out.append(ReferenceRecord(sysid, tr, (vr[0], vr[1], vr[2]), ref_source, i_ref + 1))
-                if latest and est.t_first_s is not None and tr >= est.t_first_s + skip_s:
-                    for c, ve in latest.items():
-                        ref_err[c].add((ve[0] - vr[0], ve[1] - vr[1], ve[2] - vr[2]))
+                ref_err.add_truth(tr, (vr[0], vr[1], vr[2]))
                 i_ref += 1
             if out:
                 service._publish(out)
@@ -649,7 +667,7 @@ def replay_flight_log(
             recs = est.on_sample(smp)
             for r in recs:
                 if isinstance(r, VelocityRecord):
-                    latest[r.config] = r.v_ned_mps
+                    ref_err.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
             if recs:
                 service._publish(recs)
             if progress is not None and k % step == 0:
@@ -671,8 +689,8 @@ def replay_flight_log(
         gps_delay_s=log.gps_delay_s,
         gps_delay_source=log.gps_delay_source,
         service=service.summary(),
-        rmse_vs_reference_ned_mps={c: st.rmse() for c, st in ref_err.items()},
-        reference_samples=ref_err["full"].n,
+        rmse_vs_reference_ned_mps={c: ref_err.rmse().get(c) for c in (*CONFIGS, "active")},
+        reference_samples=ref_err.truth_samples,
         t_start_s=log.streams.span_s()[0],
     )
 

@@ -129,6 +129,15 @@ class VehicleClock:
             return (t_us - self.epoch_offset_us) * 1e-6
         return t_us * 1e-6
 
+    def peek_boot_s(self, t_us: int, kind: TimeKind) -> float | None:
+        """What :meth:`to_boot_s` would return for a stamped sample, without counting
+        anything (None where it would count or learn something: an unmapped epoch time)."""
+        if kind is TimeKind.USEC and t_us > EPOCH_THRESHOLD_US:
+            if self.epoch_offset_us is None:
+                return None
+            return (t_us - self.epoch_offset_us) * 1e-6
+        return t_us * 1e-6
+
     def admit(self, stream: str, t_s: float, t_host_s: float | None = None) -> Admission:
         """Decide about a sample of ``stream`` (message name) at vehicle time ``t_s``.
 

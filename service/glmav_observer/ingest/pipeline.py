@@ -32,6 +32,7 @@ from glmav_observer.ingest.convert import (
     UNTIMED_MESSAGES,
     ConversionError,
     RawImuScale,
+    TimeKind,
     message_time_us,
     to_sample,
 )
@@ -44,6 +45,13 @@ _IMU_SOURCE: dict[str, ImuSource] = {
     "RAW_IMU": ImuSource.RAW_IMU,
     "SCALED_IMU": ImuSource.SCALED_IMU,
     "HIGHRES_IMU": ImuSource.HIGHRES_IMU,
+}
+#: MAVLink message id of each IMU message: what :meth:`Ingest.skip_superseded` is offered
+IMU_MESSAGE_IDS: dict[int, str] = {27: "RAW_IMU", 26: "SCALED_IMU", 105: "HIGHRES_IMU"}
+_IMU_TIME_KIND: dict[str, TimeKind] = {
+    "RAW_IMU": TimeKind.USEC,
+    "SCALED_IMU": TimeKind.BOOT_MS,
+    "HIGHRES_IMU": TimeKind.USEC,
 }
 
 
@@ -167,6 +175,32 @@ class Ingest:
         self.vehicles[sysid] = v
         logger.info("new vehicle", extra={"sysid": sysid, "compid": compid})
         return v
+
+    def skip_superseded(
+        self, sysid: int, compid: int, msgid: int, t_raw: int, t_host_s: float
+    ) -> bool:
+        """An IMU frame not decoded yet (a :class:`~glmav_observer.ingest.framing.FrameDecoder`
+        prefilter): True when :meth:`on_message` would drop it as superseded by a better
+        IMU message of the same vehicle; its counters and clock are then updated exactly
+        as :meth:`on_message` would. False: decode it and call :meth:`on_message`.
+        ``t_raw`` is the message's time field (``time_usec`` or ``time_boot_ms``)."""
+        v = self.vehicles.get(sysid)
+        if v is None or compid != v.compid or v.imu_source is None:
+            return False
+        name = IMU_MESSAGE_IDS[msgid]
+        if _IMU_SOURCE[name] >= v.imu_source:
+            return False
+        kind = _IMU_TIME_KIND[name]
+        t_us = t_raw * 1000 if kind is TimeKind.BOOT_MS else t_raw
+        t_s = v.clock.peek_boot_s(t_us, kind)
+        if t_s is None or t_s - v.imu_source_t_s > self.config.imu_fallback_s:
+            return False
+        # what on_message does for this message, in its order
+        v.t_host_last_s = t_host_s
+        v.counters[f"rx_{name}"] += 1
+        v.clock.to_boot_s(t_us, kind, t_host_s)
+        v.counters["imu_superseded"] += 1
+        return True
 
     def on_message(self, msg: Any, t_host_s: float) -> list[IngestEvent]:
         """One decoded message that arrived at host time ``t_host_s``; the events it causes."""

@@ -154,3 +154,53 @@ def test_summary_text_is_plain_lines_and_says_when_no_velocity_arrived() -> None
     assert "no velocity measurement" not in v2
     assert "fault detection off for 3 velocity samples" in v2
     assert "fault detection off" not in v1
+
+
+def test_superseded_imu_frames_skipped_before_decoding_change_nothing_but_the_cost() -> None:
+    """A vehicle sends three IMU messages at 250 Hz; the service uses the best one. The
+    other two are counted without being decoded (the decoder's prefilter), and everything
+    the service reports must be what the full decode path reports: records, counters per
+    vehicle and per link, messages. Mixed in: CRC errors in superseded frames (rejected
+    as before), MAVLink 1 frames, a frame from another component, an all-zero payload
+    (MAVLink 2 truncates it to one byte), two frames in one datagram (not prefiltered)."""
+    from support.fuzzgen import pack, sitl_stream
+
+    stream = sitl_stream("cruise", duration_s=4.0, seed=2)
+    frames: list[bytes] = []
+    for k, f in enumerate(stream.frames):
+        msgid = f[7] | f[8] << 8 | f[9] << 16 if f[0] == 0xFD else f[5]
+        if msgid == dialect.MAVLINK_MSG_ID_RAW_IMU and k % 50 == 0:
+            frames.append(f[:-1] + bytes([f[-1] ^ 0xFF]))  # CRC error
+        elif msgid == dialect.MAVLINK_MSG_ID_SCALED_IMU and k % 70 == 0:
+            msg = dialect.MAVLink(None).decode(bytearray(f))
+            frames.append(pack(msg, f[5], f[6], v1=True))
+        elif k % 400 == 0:
+            frames.append(f + f)  # two frames in one datagram
+        else:
+            frames.append(f)
+        if k % 500 == 0:
+            zero = dialect.MAVLink_raw_imu_message(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+            frames.append(pack(zero, f[5], f[6]))
+            frames.append(pack(zero, f[5], 77))  # another component of the vehicle
+
+    def serve(prefilter: bool) -> tuple[Service, list[object]]:
+        svc = Service(parse_config({"rates": {"mode": "observe"}}))
+        if not prefilter:
+            svc.decoder("udp").prefilter = None
+        recs: list[object] = []
+        svc.on_records = recs.extend
+        for i, f in enumerate(frames):
+            svc.feed_bytes("udp", f, 1000.0 + i * 1e-3)
+        return svc, recs
+
+    fast, fast_recs = serve(True)
+    full, full_recs = serve(False)
+    assert fast.decoders["udp"].prefiltered > 1500  # 2 of 3 IMU streams: ~2,000 in 4 s
+    assert full.decoders["udp"].prefiltered == 0
+    a, b = fast.summary(), full.summary()
+    assert a.vehicles[1].counters == b.vehicles[1].counters
+    assert a.vehicles[1].counters["imu_superseded"] > 1500
+    assert a.vehicles[1].counters["other_component"] > 0
+    assert a.link_counters == b.link_counters and a.link_counters["udp"]["bad_crc"] > 0
+    assert (a.messages, a.records) == (b.messages, b.records)
+    assert fast_recs == full_recs
