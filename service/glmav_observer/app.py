@@ -55,7 +55,7 @@ from glmav_observer.ingest.rates import encode_rate_request
 from glmav_observer.ingest.samples import Sample
 from glmav_observer.publish.file_sink import FileSink
 from glmav_observer.publish.sink import Sink
-from glmav_observer.records import CONFIGS, HealthRecord, Record
+from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, VelocityRecord
 
 logger = logging.getLogger(__name__)
 
@@ -308,12 +308,19 @@ class Service:
 
     def _publish(self, records: list[Record]) -> None:
         self.records += len(records)
+        # scored from a vehicle's first truth record on (a real vehicle has none: then
+        # this costs a lookup per record)
         scorers = self._scorers
         for r in records:
             sc = scorers.get(r.sysid)
-            if sc is None:
+            if sc is not None:
+                if type(r) is VelocityRecord:
+                    sc.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
+                elif type(r) is TruthRecord:
+                    sc.add_truth(r.t_boot_s, r.v_ned_mps)
+            elif type(r) is TruthRecord:
                 sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
-            sc.add(r)
+                sc.add_truth(r.t_boot_s, r.v_ned_mps)
         for sink in list(self.sinks):
             try:
                 for r in records:
@@ -619,7 +626,7 @@ def replay_flight_log(
     from glmav_observer.ingest.logfiles import LOG_SYSID, VELOCITY_SOURCES, read_flight_log
     from glmav_observer.ingest.rates import RateMonitor
     from glmav_observer.ingest.samples import TruthSample
-    from glmav_observer.records import ReferenceRecord, VelocityRecord
+    from glmav_observer.records import ReferenceRecord
 
     service = Service(config, sinks)
     try:

@@ -119,26 +119,30 @@ class TruthScorer:
             self.add_truth(record.t_boot_s, record.v_ned_mps)
 
     def add_estimate(self, config: str, t_s: float, v_ned_mps: Vec3) -> None:
-        if t_s < self._t_last_est_s - self.RESET_BACKWARDS_S:
+        if t_s > self._t_last_est_s:
+            self._t_last_est_s = t_s
+        elif t_s < self._t_last_est_s - self.RESET_BACKWARDS_S:
             self._new_timeline()
-        self._t_last_est_s = max(self._t_last_est_s, t_s)
+            self._t_last_est_s = t_s
         if self._t_first_s is None:
             self._t_first_s = t_s
         if t_s < self._t_first_s + self.skip_s:
             return
-        a, b = self._truth_prev, self._truth
+        b = self._truth
         if b is not None and t_s <= b[0]:
+            a = self._truth_prev
             if t_s == b[0]:
                 self._score(config, v_ned_mps, b[1])
             elif a is not None and a[0] <= t_s and b[0] - a[0] <= self.max_gap_s:
                 self._score(config, v_ned_mps, _lerp(a, b, t_s))
             return
-        self._pending.append((t_s, config, v_ned_mps))
-        # what cannot be bracketed within max_gap_s any more (no truth since) goes
-        horizon = t_s - self.max_gap_s
         p = self._pending
-        while p and p[0][0] < horizon:
-            p.popleft()
+        p.append((t_s, config, v_ned_mps))
+        # what cannot be bracketed within max_gap_s any more (no truth since) goes
+        if p[0][0] < t_s - self.max_gap_s:
+            horizon = t_s - self.max_gap_s
+            while p and p[0][0] < horizon:
+                p.popleft()
 
     def add_truth(self, t_s: float, v_ned_mps: Vec3) -> None:
         last = self._truth
