@@ -64,6 +64,7 @@ from glmav_observer.estimation.fdi import (
     Reference,
 )
 from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact, gamma_full_optimal
+from glmav_observer.estimation.streams import StreamTiming
 from glmav_observer.ingest.samples import (
     AidingSample,
     AttitudeSample,
@@ -227,10 +228,7 @@ class VehicleEstimator:
         self._f: Vec3 | None = None
         self._E: list[float] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         self._y: list[float] = [math.nan] * 3
-        self._t_y_s = 0.0
-        self._y_interval_s = 0.0
-        self._imu_interval_s = 0.0
-        self._t_imu_s: float | None = None
+        self.streams = StreamTiming(cfg.max_gap_s, cfg.fdi.missing_timeout_s)
         self._a_int: list[float] = [0.0, 0.0, 0.0]
         #: (t, A n, A e, A d) of the last ~2 LAG_WINDOW_S: the lag regressor L (fdi)
         self._a_hist: collections.deque[tuple[float, float, float, float]] = collections.deque()
@@ -246,7 +244,6 @@ class VehicleEstimator:
         self._next_health_s: float | None = None
         self._last_residual: list[float] = [math.nan] * 3
         self._last_ratio: list[float] = [0.0, 0.0, 0.0]
-        self._missing = False
         self._latest_ned: np.ndarray[Any, Any] | None = None
         self._latest_active_ned: Vec3 | None = None
 
@@ -287,11 +284,7 @@ class VehicleEstimator:
             self._euler = s.euler_rad
             self._omega_att = s.omega_body_radps
         elif isinstance(s, ImuSample):
-            if self._t_imu_s is not None and t > self._t_imu_s:
-                dt_i = min(t - self._t_imu_s, self.cfg.max_gap_s)
-                k = 1.0 if self._imu_interval_s == 0.0 else 0.02
-                self._imu_interval_s += k * (dt_i - self._imu_interval_s)
-            self._t_imu_s = t
+            self.streams.imu(t)
             f_used = self.despike.filter(s.f_body_mps2)
             if f_used is None:
                 self.counters["imu_spike_held"] += 1
@@ -392,28 +385,20 @@ class VehicleEstimator:
         if self.t_bank_s is None and not self._init_from(s):
             return
         faulty_before = set(self.fdi.faulty_axes())
-        imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
+        imu_hz = self.streams.imu_hz
         if 0.0 < imu_hz < self.cfg.fdi.min_imu_rate_hz:
             # the residual tests cannot arm: said in health (counter, axis_state "warmup")
             # and in the replay/serve summary
             self.counters["fdi_off_imu_too_slow"] += 1
         ints = self._ints()
         verdicts = self.fdi.update(t, s.v_ned_mps, self._a_int, ints, imu_hz)
-        if t > self._t_y_s:  # running mean of the measurement interval (time constant 20 samples)
-            dt_y = min(t - self._t_y_s, self.cfg.max_gap_s)
-            if self._y_interval_s == 0.0:
-                self._y_interval_s = dt_y  # the first interval seeds the mean
-            else:
-                self._y_interval_s += 0.05 * (dt_y - self._y_interval_s)
+        self.streams.measurement(t)
         self._y = self._lag_compensated(s.v_ned_mps, ints[2])
-        self._t_y_s = t
         self._a_int_at_y = list(self._a_int)
         self._b_int_at_y = list(self._b_int)
         self._use = [v.use for v in verdicts]
         self._last_residual = [v.residual_mps for v in verdicts]
         self._last_ratio = [v.test_ratio for v in verdicts]
-        if self._missing:
-            self._missing = False
         self._after_fdi(t, faulty_before)
         self._n_meas += 1
         if self.cfg.adapt_gamma_full and self._n_meas % GAMMA_UPDATE_SAMPLES == 0:
@@ -443,7 +428,7 @@ class VehicleEstimator:
         if (
             self.fdi.faulty_axes()
             or not self.fdi.armed()
-            or self._y_interval_s <= 0.0
+            or self.streams.y_interval_s <= 0.0
             or self._gamma_saved is not None
         ):
             return
@@ -451,11 +436,12 @@ class VehicleEstimator:
             return
         q = self.despike.noise_var_mps2() / imu_hz
         # E[Δr²] = 2 σ_y² + q Δt_y (the IMU's white noise over one interval)
-        var_y = max(min(a.var_diff_mps2 for a in axes) / 2.0 - q * self._y_interval_s / 2.0, 1e-8)
+        y_interval_s = self.streams.y_interval_s
+        var_y = max(min(a.var_diff_mps2 for a in axes) / 2.0 - q * y_interval_s / 2.0, 1e-8)
         b = max(math.sqrt(sum(x * x for x in self.fdi.fit.bias_body_mps2)), 0.05)
         cfg = self.cfg
         target = gamma_full_optimal(
-            math.sqrt(var_y), 1.0 / self._y_interval_s, q, b, cfg.gamma_full_min, cfg.gamma_full_max
+            math.sqrt(var_y), 1.0 / y_interval_s, q, b, cfg.gamma_full_min, cfg.gamma_full_max
         )
         now = self.bank.gamma_gain[0]
         new = min(max(target, now / 1.5), now * 1.5)
@@ -502,14 +488,10 @@ class VehicleEstimator:
             self._after_fdi(s.t_boot_s, faulty_before)
 
     def _check_missing(self, t: float) -> None:
-        """No velocity measurement for ``missing_timeout_s``: a dropout of every axis."""
-        # the timeout follows the stream's own rate (real vehicles send 1-5 Hz, unevenly)
-        timeout = max(self.cfg.fdi.missing_timeout_s, 3.5 * self._y_interval_s)
-        if self._missing or self._y_interval_s == 0.0 or t - self._t_y_s <= timeout:
+        """No velocity measurement for its timeout (streams.StreamTiming): every
+        configuration dead-reckons until samples come back; no switch."""
+        if not self.streams.check_missing(t):
             return
-        # not an axis fault (a late burst on a loaded link looks the same): every
-        # configuration dead-reckons until samples come back; no switch
-        self._missing = True
         self.counters["measurement_missing"] += 1
         self._use = [False, False, False]
 
