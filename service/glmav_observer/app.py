@@ -274,7 +274,7 @@ class Service:
         old = self._retired.pop(sysid, None)
         est = VehicleEstimator(sysid, self.config.estimation, v.counters, v.rates.rates)
         if old is not None:  # a vehicle seen again after eviction keeps its history
-            est.faults, est.switches, est.errors = old.faults, old.switches, old.errors
+            est.faults, est.switches = old.faults, old.switches
         self.estimators[sysid] = est
         self._vehicle_link[sysid] = link_id
         self._vehicle_peer[sysid] = self.current_peer

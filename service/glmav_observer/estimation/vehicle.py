@@ -142,30 +142,6 @@ class SwitchEvent:
         }
 
 
-@dataclass
-class ErrorStats:
-    """Running error statistics of one estimate against truth, per NED axis."""
-
-    n: int = 0
-    sum_sq: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    max_abs: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-
-    def add(self, err: Vec3) -> None:
-        self.n += 1
-        for i in range(3):
-            self.sum_sq[i] += err[i] * err[i]
-            self.max_abs[i] = max(self.max_abs[i], abs(err[i]))
-
-    def rmse(self) -> Vec3 | None:
-        if self.n == 0:
-            return None
-        return (
-            math.sqrt(self.sum_sq[0] / self.n),
-            math.sqrt(self.sum_sq[1] / self.n),
-            math.sqrt(self.sum_sq[2] / self.n),
-        )
-
-
 def _e_times(E: list[float], v: Vec3 | list[float]) -> list[float]:
     return [
         E[0] * v[0] + E[1] * v[1] + E[2] * v[2],
@@ -200,7 +176,6 @@ class VehicleEstimator:
         self.rates_fn = rates_fn
         self.faults: list[FaultEvent] = []
         self.switches: list[SwitchEvent] = []
-        self.errors: dict[str, ErrorStats] = {c: ErrorStats() for c in (*CONFIGS, "active")}
         self._seq: collections.Counter[str] = collections.Counter()
         self._restart()
 
@@ -244,8 +219,6 @@ class VehicleEstimator:
         self._next_health_s: float | None = None
         self._last_residual: list[float] = [math.nan] * 3
         self._last_ratio: list[float] = [0.0, 0.0, 0.0]
-        self._latest_ned: np.ndarray[Any, Any] | None = None
-        self._latest_active_ned: Vec3 | None = None
 
     def restart(self, reason: str) -> None:
         """Start the bank afresh (clock reset, long gap); metrics and events are kept."""
@@ -343,7 +316,6 @@ class VehicleEstimator:
         for k in range(9):
             bi[k] += E[k] * dt  # B = ∫ E dt (fdi.BiasFit)
         self.t_bank_s = t
-        self._latest_ned = None
 
     def _mask(self) -> list[bool] | None:
         if all(self._use):
@@ -550,7 +522,6 @@ class VehicleEstimator:
             self.bank.set_gamma("full", min(self._gamma_saved, self.cfg.gamma_full_min))
             self._t_gamma_restore_s = t + RECOVERY_BLEND_S
         self._t_seed_s[_CONFIG_INDEX[to]] = t
-        self._latest_ned = None
         self.switches.append(
             SwitchEvent(t, self._active, to, reason, (before[0], before[1], before[2]))
         )
@@ -573,7 +544,6 @@ class VehicleEstimator:
         assert t is not None
         body = self.bank.x_hat_body_mps.tolist()
         ned = self.bank.x_hat_ned_mps()
-        self._latest_ned = ned
         ned_l = ned.tolist()
         n_faulty = len(self.fdi.faulty_axes())
         for i, c in enumerate(CONFIGS):
@@ -627,7 +597,6 @@ class VehicleEstimator:
                 sw.t_boot_s, sw.from_config, sw.to_config, sw.reason, sw.v_before_ned_mps, jump
             )
             self._pending_switch = None
-        self._latest_active_ned = a_ned
 
     def _active_ned(self, ned_l: list[list[float]], config: str | None = None) -> Vec3:
         """The active estimate if ``config`` (default: the active one) were active: its NED
@@ -724,21 +693,4 @@ class VehicleEstimator:
                 self._seqn("truth"),
             )
         )
-        if (
-            self.t_first_s is None
-            or self._latest_active_ned is None
-            or s.t_boot_s < self.t_first_s + self.cfg.metrics_skip_s
-        ):
-            return
-        ned = self._latest_ned if self._latest_ned is not None else self.bank.x_hat_ned_mps()
-        v = s.v_ned_mps
-        for i, c in enumerate(CONFIGS):
-            e = ned[i]
-            self.errors[c].add((float(e[0]) - v[0], float(e[1]) - v[1], float(e[2]) - v[2]))
-        a = self._latest_active_ned
-        self.errors["active"].add((a[0] - v[0], a[1] - v[1], a[2] - v[2]))
-
-    # ------------------------------------------------------------------ summary
-    def rmse_ned_mps(self) -> dict[str, Vec3 | None]:
-        """Per configuration (and ``active``): RMSE against SIM_STATE per NED axis."""
-        return {c: st.rmse() for c, st in self.errors.items()}
+        # scored against the estimates by the service (evaluation.TruthScorer), not here
