@@ -272,7 +272,9 @@ class Service:
     def _new_estimator(self, sysid: int, link_id: str) -> None:
         v = self.ingest.vehicles[sysid]
         old = self._retired.pop(sysid, None)
-        est = VehicleEstimator(sysid, self.config.estimation, v.counters, v.rates.rates)
+        est = VehicleEstimator(
+            sysid, self.config.estimation, input_counters=lambda: v.counters, rates_fn=v.rates.rates
+        )
         if old is not None:  # a vehicle seen again after eviction keeps its history
             est.faults, est.switches = old.faults, old.switches
         self.estimators[sysid] = est
@@ -286,7 +288,7 @@ class Service:
         est = self.estimators[sysid]
         nan = math.nan
         self._conflict_seq[sysid] = self._conflict_seq.get(sysid, 0) + 1
-        counters = dict(sorted(v.counters.items()))
+        counters = est.all_counters()
         counters["conflicting_sources_active"] = int(v.conflict)
         return HealthRecord(
             sysid,
@@ -453,7 +455,7 @@ class Service:
                 truth_samples=scorer.truth_samples,
                 faults=[f.to_dict() for f in est.faults],
                 switches=[s.to_dict() for s in est.switches],
-                counters=dict(sorted(est.counters.items())),
+                counters=est.all_counters(),
                 active_config=est.active_config,
             )
         return ServiceSummary(
@@ -634,9 +636,8 @@ def replay_flight_log(
             raise ValueError(f"velocity source must be gps or ekf, got {velocity_source!r}")
         log = read_flight_log(path, velocity_source, gps_delay_s=gps_delay_s)  # type: ignore[arg-type]
         sysid = LOG_SYSID
-        counters: collections.Counter[str] = collections.Counter()
         monitor = RateMonitor({}, window_s=config.ingest.rate_window_s)
-        est = VehicleEstimator(sysid, config.estimation, counters, monitor.rates)
+        est = VehicleEstimator(sysid, config.estimation, rates_fn=monitor.rates)
         service.estimators[sysid] = est
         ref_source = log.streams.sources.get("ekf", "ekf")
         t_ref = log.t_reference_s.tolist()

@@ -461,7 +461,7 @@ def replay(
             Switch(s.t_boot_s, s.from_config, s.to_config, s.reason, s.jump_mps)
             for s in est.switches
         ],
-        counters=dict(est.counters),
+        counters=est.all_counters(),
         collector=collector,
         skip_s=skip,
         reference_fit=est.reference_fit_summary(),

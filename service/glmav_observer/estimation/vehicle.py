@@ -142,6 +142,15 @@ class SwitchEvent:
         }
 
 
+def merge_counters(*parts: Mapping[str, int]) -> dict[str, int]:
+    """Counters of several components, summed by name, sorted by name."""
+    out: dict[str, int] = {}
+    for part in parts:
+        for k, n in part.items():
+            out[k] = out.get(k, 0) + n
+    return dict(sorted(out.items()))
+
+
 def _e_times(E: list[float], v: Vec3 | list[float]) -> list[float]:
     return [
         E[0] * v[0] + E[1] * v[1] + E[2] * v[2],
@@ -165,14 +174,17 @@ class VehicleEstimator:
         self,
         sysid: int,
         config: EstimatorConfig,
-        counters: collections.Counter[str] | None = None,
+        input_counters: Callable[[], Mapping[str, int]] | None = None,
         rates_fn: Callable[[float], dict[str, float]] | None = None,
     ) -> None:
+        """``input_counters``: what the vehicle's input (ingest) counted, reported beside
+        the estimator's own :attr:`counters` in health records; ``rates_fn``: its input
+        rates at a vehicle time."""
         self.sysid = sysid
         self.cfg = config
-        self.counters: collections.Counter[str] = (
-            counters if counters is not None else collections.Counter()
-        )
+        #: what the estimator counted (its own; the input's are reported by the input)
+        self.counters: collections.Counter[str] = collections.Counter()
+        self.input_counters = input_counters
         self.rates_fn = rates_fn
         self.faults: list[FaultEvent] = []
         self.switches: list[SwitchEvent] = []
@@ -664,9 +676,15 @@ class VehicleEstimator:
                     ),
                 ),
                 self.rates_fn(t) if self.rates_fn is not None else {},
-                dict(sorted(self.counters.items())),
+                self.all_counters(),
                 self.reference_fit_summary(),
             )
+        )
+
+    def all_counters(self) -> dict[str, int]:
+        """The input's counters and the estimator's, summed by name, sorted."""
+        return merge_counters(
+            self.input_counters() if self.input_counters is not None else {}, self.counters
         )
 
     def reference_fit_summary(self) -> ReferenceFitSummary | None:
