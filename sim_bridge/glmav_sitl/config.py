@@ -2,8 +2,10 @@
 
 Every reader takes the file path and a dotted key so that a bad value is reported
 as ``<file>: <key>: <reason>``; the CLI turns :class:`ConfigError` into exit code 2.
-Default files ship inside the package (``glmav_sitl/data``); ``configs/`` in the
-repository holds identical user-facing copies (a test keeps them equal).
+Default files ship inside the package (``glmav_sitl/data``), the one copy of each:
+``glmav-sitl files`` prints their paths (copy one, edit it, pass it with ``--config``,
+``--vehicle`` or ``--scenario PATH``). ``configs/`` in the repository holds the service's
+files only.
 """
 
 from __future__ import annotations
@@ -31,6 +33,11 @@ def data_path(*parts: str) -> Path:
     # glmav_sitl without __init__.py earlier on sys.path (tests/integration/glmav_sitl under
     # pytest's rootdir insertion) is a namespace package that resources would resolve to.
     return Path(__file__).resolve().parent.joinpath("data", *parts)
+
+
+def packaged_files() -> list[Path]:
+    """The packaged default files: ``sitl.toml``, the vehicle file and the scenarios."""
+    return sorted(p for p in data_path().rglob("*.toml") if p.is_file())
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Vehicle parameters of the GLMAV model (paper section 2), loaded from TOML.
 
-Each entry of ``configs/vehicle/glmav.toml`` is an inline table
+Each entry of ``glmav_sitl/data/vehicle/glmav.toml`` is an inline table
 ``key = { value = ..., unit = "...", source = "..." }``. Loading checks that every
 known key is present, that its unit is exactly the expected one, that the value is a
 finite number within a physical range, and that a source is given; anything else

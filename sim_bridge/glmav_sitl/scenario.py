@@ -3,7 +3,7 @@
 A scenario names its initial state, how the vehicle is flown (closed loop with
 time-tagged setpoints, or open-loop actuator inputs), the wind, the sensor profile
 (``ideal`` or ``autopilot``, see :mod:`glmav_sitl.sensors.autopilot`), sensor noise
-switches, stream rates and scheduled sensor faults. See ``configs/scenarios/*.toml``
+switches, stream rates and scheduled sensor faults. See ``glmav_sitl/data/scenarios/*.toml``
 for commented examples; every key is checked (unknown keys are errors).
 """
 

@@ -118,9 +118,9 @@ def soak(
     ports: list[int] = []
     # the design's streams (HIGHRES_IMU 250 Hz, ATTITUDE 100, LOCAL_POSITION_NED 30,
     # SIM_STATE 50) without RAW_IMU/SCALED_IMU, which the service would ask to stop anyway
-    import glmav_sitl
+    from glmav_sitl.config import data_path
 
-    sitl_toml = Path(glmav_sitl.__file__).with_name("data") / "sitl.toml"
+    sitl_toml = data_path("sitl.toml")
     text = re.sub(r"(?m)^(raw_imu|scaled_imu) = .*$", r"\1 = 0.0", sitl_toml.read_text())
     tmp = tempfile.TemporaryDirectory(prefix="glmav-soak-")
     sitl_cfg = Path(tmp.name) / "sitl.toml"

@@ -6,23 +6,21 @@ from pathlib import Path
 
 import pytest
 
-from glmav_sitl.config import ConfigError, data_path
+from glmav_sitl.config import ConfigError, data_path, packaged_files
 from glmav_sitl.params import load_vehicle_params
+from glmav_sitl.scenario import scenario_names
 
 REPO = Path(__file__).resolve().parents[3]
 
 
-def test_packaged_defaults_equal_the_user_facing_configs() -> None:
-    """configs/ and glmav_sitl/data/ must never drift apart."""
-    user = sorted(
-        p.relative_to(REPO / "configs")
-        for p in (REPO / "configs").rglob("*.toml")
-        if p.parts[-2] in ("vehicle", "scenarios") or p.name == "sitl.toml"
-    )
-    assert user, "no configs found"
-    for rel in user:
-        shipped = data_path(*rel.parts)
-        assert shipped.read_bytes() == (REPO / "configs" / rel).read_bytes(), rel
+def test_the_packaged_files_are_the_only_copies() -> None:
+    """One copy of each simulator file: the package's (glmav-sitl files lists them);
+    configs/ holds the service's files only."""
+    shipped = {p.relative_to(data_path()) for p in packaged_files()}
+    assert Path("sitl.toml") in shipped and Path("vehicle", "glmav.toml") in shipped
+    assert len([p for p in shipped if p.parts[0] == "scenarios"]) == len(scenario_names())
+    copies = [p for p in shipped if (REPO / "configs" / p).exists()]
+    assert copies == [], f"second copies in configs/: {copies}"
 
 
 def test_default_vehicle_loads_with_design_values() -> None:
@@ -72,3 +70,12 @@ def test_bad_vehicle_file_names_file_key_and_reason(
 def test_missing_file_is_a_config_error(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="file not found"):
         load_vehicle_params(tmp_path / "nope.toml")
+
+
+def test_files_command_prints_the_packaged_paths(capsys: pytest.CaptureFixture[str]) -> None:
+    from glmav_sitl.cli import main
+
+    assert main(["files"]) == 0
+    printed = capsys.readouterr().out.split()
+    assert printed == [str(p) for p in packaged_files()]
+    assert str(data_path("sitl.toml")) in printed and len(printed) == len(scenario_names()) + 2
