@@ -17,14 +17,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import format_goals, format_table, goal, main_for
+from glmav_testkit.faultproxy import FaultSpec
+from glmav_testkit.faultrun import fly_through_proxy
+
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT / "tests") not in sys.path:
-    sys.path.insert(0, str(ROOT / "tests"))
-
-from benchmarks.common import format_goals, format_table, goal, main_for  # noqa: E402
-from support.faultproxy import FaultSpec  # noqa: E402
-from support.faultrun import fly_through_proxy  # noqa: E402
-
 DOC = ROOT / "docs" / "benchmarks" / "faults_accuracy.md"
 
 CASES: tuple[tuple[str, FaultSpec, tuple[float, float] | None], ...] = (

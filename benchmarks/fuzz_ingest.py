@@ -33,20 +33,17 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT / "tests") not in sys.path:
-    sys.path.insert(0, str(ROOT / "tests"))
-
-from benchmarks.common import format_table, goal, main_for  # noqa: E402
-from support.fuzzgen import (  # noqa: E402
+from benchmarks.common import format_table, goal, main_for
+from glmav_testkit.fuzzgen import (
     VEHICLE_SYSID,
     CaseMaker,
     ValidStream,
     load_corrupt_log,
     sitl_stream,
 )
-from support.ingest_harness import Harness, velocity_series  # noqa: E402
+from glmav_testkit.ingest_harness import Harness, velocity_series
 
+ROOT = Path(__file__).resolve().parents[1]
 REAL_TLOGS = ROOT / "tests" / "data" / "real-tlogs"
 CASES_PER_FRAME = 3
 #: valid frames before the damage starts: the vehicle is admitted first. Without this, a

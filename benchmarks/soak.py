@@ -27,13 +27,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import format_goals, format_table, goal, machine, main_for
+from glmav_testkit.soakrun import soak
+
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT / "tests") not in sys.path:
-    sys.path.insert(0, str(ROOT / "tests"))
-
-from benchmarks.common import format_goals, format_table, goal, machine, main_for  # noqa: E402
-from support.soakrun import soak  # noqa: E402
-
 DOC = ROOT / "docs" / "benchmarks" / "soak.md"
 
 

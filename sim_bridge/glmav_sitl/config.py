@@ -29,9 +29,6 @@ class ConfigError(ValueError):
 
 def data_path(*parts: str) -> Path:
     """Path of a default file shipped in ``glmav_sitl/data`` (e.g. ``data_path("sitl.toml")``)."""
-    # Relative to this module, not importlib.resources.files("glmav_sitl"): a folder named
-    # glmav_sitl without __init__.py earlier on sys.path (tests/integration/glmav_sitl under
-    # pytest's rootdir insertion) is a namespace package that resources would resolve to.
     return Path(__file__).resolve().parent.joinpath("data", *parts)
 
 

@@ -16,10 +16,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from sitl_live import SITL, fault_scenario, run_live, service_test_config
 
 from glmav_observer.app import replay_tlog
 from glmav_sitl.config import data_path
+from glmav_testkit.sitl_live import SITL, fault_scenario, run_live, service_test_config
 
 T_FAULT_S = 7.0
 # bias 0.5 m/s: the bias test's threshold is max(0.15, 5 s) with s >= the measured residual

@@ -79,3 +79,22 @@ def test_files_command_prints_the_packaged_paths(capsys: pytest.CaptureFixture[s
     printed = capsys.readouterr().out.split()
     assert printed == [str(p) for p in packaged_files()]
     assert str(data_path("sitl.toml")) in printed and len(printed) == len(scenario_names()) + 2
+
+
+def test_no_test_folder_shadows_the_packages() -> None:
+    """pytest runs with --import-mode=importlib: no test folder is put on sys.path, so the
+    folders named after the packages (tests/unit/glmav_sitl, ...) never become namespace
+    packages hiding them, and importlib.resources finds the real package's data."""
+    import importlib.resources
+    import importlib.util
+    import sys
+
+    tests = (REPO / "tests").resolve()
+    on_path = {Path(p).resolve() for p in sys.path if p and Path(p).resolve().is_relative_to(tests)}
+    assert on_path <= {tests / "support"}, on_path  # the kit's root, if the install adds it
+    for name in ("glmav_sitl", "glmav_observer", "benchmarks"):
+        spec = importlib.util.find_spec(name)
+        assert spec is not None and spec.origin is not None, name  # a namespace has no origin
+        assert not Path(spec.origin).resolve().is_relative_to(tests), spec.origin
+    shipped = importlib.resources.files("glmav_sitl").joinpath("data", "sitl.toml")
+    assert shipped.read_bytes() == data_path("sitl.toml").read_bytes()

@@ -18,7 +18,7 @@ from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import Record, VelocityRecord
 from glmav_sitl.runner import run
-from support.faultproxy import FaultSpec, UdpFaultProxy
+from glmav_testkit.faultproxy import FaultSpec, UdpFaultProxy
 
 
 def free_udp_port() -> int:

@@ -42,8 +42,9 @@ from glmav_observer.estimation.vehicle import VehicleEstimator
 from glmav_observer.ingest.links import Link
 from glmav_observer.ingest.samples import AttitudeSample, ImuSample, TruthSample, VelocitySample
 from glmav_observer.records import Record
+from glmav_testkit import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 SITL = str(Path(sys.executable).with_name("glmav-sitl"))
 SCENARIOS = ("cruise", "hover", "climbing-turn", "gusts")
 _SAMPLE_TYPES = (AttitudeSample, ImuSample, TruthSample, VelocitySample)
