@@ -23,6 +23,7 @@ from glmav_observer.ingest.clock import ClockConfig
 from glmav_observer.ingest.convert import RawImuScale
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
+from glmav_observer.publish.schema import DEFAULT_DECIMATION, KINDS, decimation_reason
 
 #: The rates the estimator needs (``[rates.min_hz]``): a stream below is asked for.
 #: IMU: the FDI's ``min_imu_rate_hz`` (its residual tests need it); ATTITUDE: 10 Hz (the
@@ -65,9 +66,7 @@ class ZenohSettings:
     enabled: bool = False
     config: str = ""
     prefix: str = "glmav"
-    decimation: Mapping[str, int] = field(
-        default_factory=lambda: {"velocity": 1, "active": 1, "health": 1}
-    )
+    decimation: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_DECIMATION))
 
 
 @dataclass(frozen=True, slots=True)
@@ -440,9 +439,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         enabled=zr.get("enabled", bool, False),
         config=zr.get("config", str, ""),
         prefix=zr.get("prefix", str, "glmav", _key_prefix),
-        decimation={
-            k: dec_r.get(k, int, 1, _within(0, 10_000)) for k in ("velocity", "active", "health")
-        },
+        decimation={k: dec_r.get(k, int, DEFAULT_DECIMATION[k], decimation_reason) for k in KINDS},
     )
     dec_r.done()
     zr.done()
