@@ -17,11 +17,12 @@ import threading
 from collections.abc import Sequence
 from types import FrameType
 
-from glmav_sitl.config import ConfigError, packaged_files
+from glmav_sitl.config import packaged_files
 from glmav_sitl.mavlink.links import LinkError
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.runner import parse_speed, run
 from glmav_sitl.scenario import SENSOR_PROFILES, load_scenario, load_sitl_config, scenario_names
+from glmav_toml import ConfigError
 
 log = logging.getLogger("glmav_sitl")
 

@@ -29,7 +29,7 @@ def test_shipped_file_documents_the_defaults() -> None:
     ("doc", "key", "reason"),
     [
         ({"fdi": {"bias_threshold_mps": -1.0}}, "fdi.bias_threshold_mps", r"must be in \(0, 100\]"),
-        ({"fdi": {"k_isolate": "3"}}, "fdi.k_isolate", "expected int"),
+        ({"fdi": {"k_isolate": "3"}}, "fdi.k_isolate", "expected an integer"),
         ({"fdi": {"warmup_s": 0.5}}, "fdi.warmup_s", r"must be in \[1, 600\]"),
         ({"estimation": {"e_form": "approx"}}, "estimation.e_form", "exact or small_angle"),
         ({"estimation": {"gama_full": 3.0}}, "estimation.gama_full", "unknown key"),

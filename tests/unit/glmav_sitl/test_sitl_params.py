@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from glmav_sitl.config import ConfigError, data_path, packaged_files
+from glmav_sitl.config import data_path, packaged_files
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.scenario import scenario_names
+from glmav_toml import ConfigError
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -45,16 +46,24 @@ def _write(tmp_path: Path, old: str, new: str) -> Path:
             'm = { value = 0.200, unit = "g"',
             r"m\.unit: expected unit 'kg'",
         ),
-        ("m = { value = 0.200", "m = { value = -0.2", r"m\.value: -0\.2 kg outside"),
+        (
+            "m = { value = 0.200",
+            "m = { value = -0.2",
+            r"m\.value: must be in \(0, 100\] kg, got -0\.2",
+        ),
         ("m = { value = 0.200", 'm = { value = "heavy"', r"m\.value: expected a number"),
-        ("sigma = { value = 1.0", "sigma = { value = 0.5", r"sigma\.value: 0\.5 - outside"),
+        (
+            "sigma = { value = 1.0",
+            "sigma = { value = 0.5",
+            r"sigma\.value: must be in \[0\.8, 1\] -, got 0\.5",
+        ),
         (
             "gamma2 = { value = -9.025e-7",
             "gamma2 = { value = 9.025e-7",
             r"gamma2\.value: .*opposite",
         ),
         ('source = "ISA sea level"', 'source = ""', r"rho\.source"),
-        ("rho = {", "rhoo = {", r"rhoo: unknown parameter"),
+        ("rho = {", "rhoo = {", r"rhoo: unknown key \(known: "),
         ("rho = {", "rho = [", r"not valid TOML"),
     ],
 )
