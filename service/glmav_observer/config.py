@@ -14,8 +14,9 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
+from glmav_observer.estimation import EForm
 from glmav_observer.estimation.bank import DEFAULT_GAMMA
 from glmav_observer.estimation.fdi import FdiConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
@@ -23,8 +24,13 @@ from glmav_observer.ingest.clock import ClockConfig
 from glmav_observer.ingest.convert import RawImuScale
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
-from glmav_observer.publish.schema import DEFAULT_DECIMATION, KINDS, decimation_reason
-from glmav_toml import Check, ConfigError, TableReader, load_toml, within
+from glmav_observer.publish.schema import (
+    DEFAULT_DECIMATION,
+    DEFAULT_PREFIX,
+    KINDS,
+    decimation_reason,
+)
+from glmav_toml import Check, ConfigError, TableReader, load_toml, one_of, within
 
 #: The rates the estimator needs (``[rates.min_hz]``): a stream below is asked for.
 #: IMU: the FDI's ``min_imu_rate_hz`` (its residual tests need it); ATTITUDE: 10 Hz (the
@@ -56,7 +62,7 @@ DEFAULT_RATES_HZ: dict[str, float] = {
 class ZenohSettings:
     enabled: bool = False
     config: str = ""
-    prefix: str = "glmav"
+    prefix: str = DEFAULT_PREFIX
     decimation: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_DECIMATION))
 
 
@@ -236,18 +242,19 @@ def _fields_from(r: TableReader, default: Any) -> dict[str, Any]:
 def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConfig:
     """Validate a parsed TOML document (see ``configs/service.toml``)."""
     root = TableReader(file, data, "")
+    d = ServiceConfig()  # every default below comes from the dataclasses, never a literal
     # [service]
     svc = root.sub("service")
-    service_id = svc.get("id", str, "glmav-observer", _name)
-    links_raw = svc.get("links", list, [])
+    service_id = svc.get("id", str, d.service_id, _name)
+    links_raw = svc.get("links", list, list(d.links))
     for i, link in enumerate(links_raw):
         if not isinstance(link, str) or not link:
             raise ConfigError(file, f"service.links[{i}]", "expected a connection string")
-    out = svc.get("out", str, "")
+    out = svc.get("out", str, d.out)
     if out and not out.endswith((".csv", ".jsonl")):
         raise ConfigError(file, "service.out", f"must end in .csv or .jsonl, got {out!r}")
     rcvbuf = svc.get(
-        "udp_receive_buffer_bytes", int, 4 * 1024 * 1024, within(4096, 1 << 30)
+        "udp_receive_buffer_bytes", int, d.udp_receive_buffer_bytes, within(4096, 1 << 30)
     )  # a C int for setsockopt; 1 GiB is beyond any net.core.rmem_max
     svc.done()
     # [ingest]
@@ -284,10 +291,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     # [rates]
     rates = root.sub("rates")
     rate_mode = rates.get(
-        "mode",
-        str,
-        "request",
-        lambda x: None if x in ("request", "observe") else "must be request or observe",
+        "mode", str, "request" if d.request_rates else "observe", one_of("request", "observe")
     )
     request_rates = rate_mode == "request"
     window_s = rates.get("window_s", float, base.rate_window_s, within(0, 60, lo_open=True))
@@ -343,12 +347,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         c: est.get(f"gamma_{c}", float, g, within(0, 1000, lo_open=True))
         for c, g in DEFAULT_GAMMA.items()
     }
-    e_form = est.get(
-        "e_form",
-        str,
-        "exact",
-        lambda s: None if s in ("exact", "small_angle") else "must be exact or small_angle",
-    )
+    e_form = est.get("e_form", str, e_base.e_form, one_of(*get_args(EForm)))
     est_fields = _fields_from(est, e_base)
     est.done()
     # [fdi]
@@ -362,9 +361,9 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     zr = root.sub("zenoh")
     dec_r = zr.sub("decimation")
     zenoh = ZenohSettings(
-        enabled=zr.get("enabled", bool, False),
-        config=zr.get("config", str, ""),
-        prefix=zr.get("prefix", str, "glmav", _key_prefix),
+        enabled=zr.get("enabled", bool, d.zenoh.enabled),
+        config=zr.get("config", str, d.zenoh.config),
+        prefix=zr.get("prefix", str, d.zenoh.prefix, _key_prefix),
         decimation={k: dec_r.get(k, int, DEFAULT_DECIMATION[k], decimation_reason) for k in KINDS},
     )
     dec_r.done()
@@ -372,9 +371,9 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     # [rerun]
     rr = root.sub("rerun")
     rerun = RerunSettings(
-        mode=rr.get("mode", str, "off", check_rerun_mode),
-        decimation=rr.get("decimation", int, 1, within(1, 10_000)),
-        serve_bind=rr.get("serve_bind", str, "127.0.0.1", _ip_address),
+        mode=rr.get("mode", str, d.rerun.mode, check_rerun_mode),
+        decimation=rr.get("decimation", int, d.rerun.decimation, within(1, 10_000)),
+        serve_bind=rr.get("serve_bind", str, d.rerun.serve_bind, _ip_address),
     )
     rr.done()
     # [security] (issue #9): the MAVLink 2 signing key; only frames signed with it pass

@@ -30,6 +30,9 @@ from glmav_observer.records import (
 STATE_SCHEMA = "glmav.state/1"
 CONFIG_SCHEMA = "glmav.config/1"
 
+#: The key prefix of everything the service publishes, unless configured.
+DEFAULT_PREFIX = "glmav"
+
 #: The key kinds a decimation can be set for (``[zenoh.decimation]``, the sink's
 #: ``decimation`` mapping, the published config), with their defaults: every record.
 KINDS: tuple[str, ...] = ("velocity", "active", "health", "measurement", "truth")

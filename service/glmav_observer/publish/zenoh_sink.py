@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 from glmav_observer.publish.schema import (
     CONFIG_SCHEMA,
     DEFAULT_DECIMATION,
+    DEFAULT_PREFIX,
     KINDS,
     STATE_SCHEMA,
     decimation_reason,
@@ -299,7 +300,7 @@ class ZenohSink:
         session: zenoh.Session,
         *,
         config_name: str | None,
-        prefix: str = "glmav",
+        prefix: str = DEFAULT_PREFIX,
         decimation: Mapping[str, int] | None = None,
         service_id: str,
         effective_config: Mapping[str, Any],
@@ -579,7 +580,7 @@ class ZenohSink:
 def open_zenoh_sink(
     zenoh_config_path: str | os.PathLike[str] | None,
     *,
-    prefix: str = "glmav",
+    prefix: str = DEFAULT_PREFIX,
     decimation: Mapping[str, int] | None = None,
     service_id: str,
     effective_config: Mapping[str, Any],
