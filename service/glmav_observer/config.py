@@ -22,6 +22,7 @@ from glmav_observer.estimation.fdi import FdiConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig
 from glmav_observer.ingest.convert import RawImuScale
+from glmav_observer.ingest.links import DEFAULT_UDP_RECEIVE_BUFFER_BYTES
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
 from glmav_observer.publish.schema import (
@@ -102,7 +103,7 @@ class ServiceConfig:
     service_id: str = "glmav-observer"
     links: tuple[str, ...] = ()
     out: str = ""
-    udp_receive_buffer_bytes: int = 4 * 1024 * 1024
+    udp_receive_buffer_bytes: int = DEFAULT_UDP_RECEIVE_BUFFER_BYTES
     request_rates: bool = True
     ingest: IngestConfig = field(default_factory=IngestConfig)
     estimation: EstimatorConfig = field(default_factory=EstimatorConfig)
