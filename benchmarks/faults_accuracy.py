@@ -1,7 +1,7 @@
 """Accuracy of the active estimate when the radio link drops, reorders, duplicates, delays.
 
 Each row flies the ``cruise`` scenario in real time (seed 1) from the simulator through
-the loopback fault proxy (``tests/support/faultproxy.py``) to the service, and reports the
+the loopback fault proxy (``glmav_testkit.faultproxy``) to the service, and reports the
 service's RMSE of the active estimate against SIM_STATE truth per NED axis, the share of
 frames delivered, and the ingest counters (late, reordered, duplicate, gaps, restarts).
 The first row (no faults) is the baseline of the same run.

@@ -3,7 +3,7 @@
 The input path of the service (framing -> ingest -> one estimator per vehicle) gets the
 simulator's valid MAVLink stream (vehicle 1, 6 s of the ``cruise`` scenario, one frame
 per datagram as on UDP) with three damaged datagrams after every valid one
-(``tests/support/fuzzgen.py``: random bytes, truncated and spliced frames, wrong CRCs,
+(``glmav_testkit.fuzzgen``: random bytes, truncated and spliced frames, wrong CRCs,
 bad flags, unknown ids, NaN/inf/extreme values, time jumps, system and component id
 storms, MAVLink 1 mixes, slices of the real corrupt ArduSub log). Sessions alternate:
 

@@ -3,7 +3,7 @@
 Every vehicle is a ``glmav-sitl run`` subprocess in real time on its own UDP link
 (HIGHRES_IMU 250 Hz, ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz, SIM_STATE 50 Hz: ~430
 datagrams/s each); the service runs in this process with the shipped configuration.
-Measured (``tests/support/soakrun.py``): RSS growth after the warm-up, in = out counters
+Measured (``glmav_testkit.soakrun``): RSS growth after the warm-up, in = out counters
 (samples out of ingest vs into the estimators, frames sent vs decoded + dropped by the
 kernel, records produced vs received by the sink), per-datagram processing latency per
 window, and each vehicle's RMSE against SIM_STATE.
