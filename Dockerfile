@@ -42,6 +42,7 @@ RUN /opt/glmav/bin/python -m compileall -q /opt/glmav/lib
 COPY pyproject.toml README.md /src/
 COPY service /src/service
 COPY sim_bridge /src/sim_bridge
+COPY common /src/common
 RUN cd /src && /opt/build/bin/pip wheel --no-deps --no-build-isolation --wheel-dir /wheels .
 
 # ---------------------------------------------------------------------------------------

@@ -43,6 +43,7 @@ from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.workers import ShardedServer, worker_specs
 from glmav_observer.ingest.links import Link
+from glmav_testkit.fleet_helpers import udp_queue
 
 ROOT = Path(__file__).resolve().parents[1]
 SITL = str(Path(sys.executable).with_name("glmav-sitl"))
@@ -67,17 +68,6 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _udp_queue(port: int) -> tuple[int, int]:
-    """(bytes waiting, datagrams dropped) of UDP 127.0.0.1:``port`` (/proc/net/udp)."""
-    want = f"0100007F:{port:04X}"
-    with open("/proc/net/udp", encoding="ascii") as f:
-        for line in f.readlines()[1:]:
-            cols = line.split()
-            if cols[1] == want:
-                return int(cols[4].split(":")[1], 16), int(cols[-1])
-    return 0, 0
-
-
 def _generate(tlog: Path, port: int, n: int, seconds: float) -> dict[str, float]:
     out = subprocess.run(
         [SITL, "fleet", "--tlog", str(tlog), "--vehicles", str(n), "--duration", str(seconds),
@@ -93,7 +83,7 @@ def _generate(tlog: Path, port: int, n: int, seconds: float) -> dict[str, float]
 
 def _drain(port: int) -> None:
     deadline = time.monotonic() + 60.0
-    while _udp_queue(port)[0] and time.monotonic() < deadline:
+    while udp_queue(port)[0] and time.monotonic() < deadline:
         time.sleep(0.05)
     time.sleep(0.2)  # the last datagram read is still being estimated
 
@@ -123,7 +113,7 @@ def _point_single(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
     finally:
         stop.set()
         th.join(30.0)
-        drops = _udp_queue(port)[1]
+        drops = udp_queue(port)[1]
         link.close()
         svc.close()
     cpu = time.process_time() - cpu0  # this process: the service thread (and idle waits)
@@ -148,7 +138,7 @@ def _point_sharded(tlog: Path, n: int, seconds: float, workers: int) -> dict[str
     finally:
         stop.set()
         th.join(30.0)
-        drops = _udp_queue(port)[1]
+        drops = udp_queue(port)[1]
         link.close()
         result = server.close()
     s = result.summary

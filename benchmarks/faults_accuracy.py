@@ -1,7 +1,7 @@
 """Accuracy of the active estimate when the radio link drops, reorders, duplicates, delays.
 
 Each row flies the ``cruise`` scenario in real time (seed 1) from the simulator through
-the loopback fault proxy (``tests/support/faultproxy.py``) to the service, and reports the
+the loopback fault proxy (``glmav_testkit.faultproxy``) to the service, and reports the
 service's RMSE of the active estimate against SIM_STATE truth per NED axis, the share of
 frames delivered, and the ingest counters (late, reordered, duplicate, gaps, restarts).
 The first row (no faults) is the baseline of the same run.
@@ -17,14 +17,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import format_goals, format_table, goal, main_for
+from glmav_testkit.faultproxy import FaultSpec
+from glmav_testkit.faultrun import fly_through_proxy
+
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT / "tests") not in sys.path:
-    sys.path.insert(0, str(ROOT / "tests"))
-
-from benchmarks.common import format_goals, format_table, goal, main_for  # noqa: E402
-from support.faultproxy import FaultSpec  # noqa: E402
-from support.faultrun import fly_through_proxy  # noqa: E402
-
 DOC = ROOT / "docs" / "benchmarks" / "faults_accuracy.md"
 
 CASES: tuple[tuple[str, FaultSpec, tuple[float, float] | None], ...] = (

@@ -3,7 +3,7 @@
 The input path of the service (framing -> ingest -> one estimator per vehicle) gets the
 simulator's valid MAVLink stream (vehicle 1, 6 s of the ``cruise`` scenario, one frame
 per datagram as on UDP) with three damaged datagrams after every valid one
-(``tests/support/fuzzgen.py``: random bytes, truncated and spliced frames, wrong CRCs,
+(``glmav_testkit.fuzzgen``: random bytes, truncated and spliced frames, wrong CRCs,
 bad flags, unknown ids, NaN/inf/extreme values, time jumps, system and component id
 storms, MAVLink 1 mixes, slices of the real corrupt ArduSub log). Sessions alternate:
 
@@ -33,20 +33,17 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT / "tests") not in sys.path:
-    sys.path.insert(0, str(ROOT / "tests"))
-
-from benchmarks.common import format_table, goal, main_for  # noqa: E402
-from support.fuzzgen import (  # noqa: E402
+from benchmarks.common import format_table, goal, main_for
+from glmav_testkit.fuzzgen import (
     VEHICLE_SYSID,
     CaseMaker,
     ValidStream,
     load_corrupt_log,
     sitl_stream,
 )
-from support.ingest_harness import Harness, velocity_series  # noqa: E402
+from glmav_testkit.ingest_harness import Harness, velocity_series
 
+ROOT = Path(__file__).resolve().parents[1]
 REAL_TLOGS = ROOT / "tests" / "data" / "real-tlogs"
 CASES_PER_FRAME = 3
 #: valid frames before the damage starts: the vehicle is admitted first. Without this, a

@@ -3,7 +3,7 @@
 Every vehicle is a ``glmav-sitl run`` subprocess in real time on its own UDP link
 (HIGHRES_IMU 250 Hz, ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz, SIM_STATE 50 Hz: ~430
 datagrams/s each); the service runs in this process with the shipped configuration.
-Measured (``tests/support/soakrun.py``): RSS growth after the warm-up, in = out counters
+Measured (``glmav_testkit.soakrun``): RSS growth after the warm-up, in = out counters
 (samples out of ingest vs into the estimators, frames sent vs decoded + dropped by the
 kernel, records produced vs received by the sink), per-datagram processing latency per
 window, and each vehicle's RMSE against SIM_STATE.
@@ -27,13 +27,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import format_goals, format_table, goal, machine, main_for
+from glmav_testkit.soakrun import soak
+
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT / "tests") not in sys.path:
-    sys.path.insert(0, str(ROOT / "tests"))
-
-from benchmarks.common import format_goals, format_table, goal, machine, main_for  # noqa: E402
-from support.soakrun import soak  # noqa: E402
-
 DOC = ROOT / "docs" / "benchmarks" / "soak.md"
 
 

@@ -10,7 +10,8 @@
 Datagrams from the vehicle are dropped, held back (reordered), duplicated and delayed
 at random (seeded); replies pass unharmed. Counters are printed every few seconds and
 at exit (Ctrl-C). The proxy binds to 127.0.0.1 unless --bind says otherwise.
-Implementation: tests/support/faultproxy.py (standard library only).
+Implementation: glmav_testkit.faultproxy (tests/support/glmav_testkit/faultproxy.py, standard
+library only; importable after ``pip install -e '.[test]'``).
 """
 
 from __future__ import annotations
@@ -19,11 +20,8 @@ import argparse
 import signal
 import sys
 import threading
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from support.faultproxy import FaultSpec, UdpFaultProxy
+from glmav_testkit.faultproxy import FaultSpec, UdpFaultProxy
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,28 +1,37 @@
 """``configs/service.toml``: loading and validation of the service's settings.
 
 Every setting has a default (the values in ``configs/service.toml``, where each one is
-documented); a file overrides some of them. A bad file raises :class:`ConfigError`
-naming the file, the key (dotted) and the reason; the commands turn it into exit code 2.
-Unknown keys are errors too (a typo must not silently fall back to a default).
+documented); a file overrides some of them. Keys are read and checked the way the
+simulator reads its files (:mod:`glmav_toml`): a bad file raises
+:class:`~glmav_toml.ConfigError` naming the file, the key (dotted) and the reason; the
+commands turn it into exit code 2. Unknown keys are errors too (a typo must not silently
+fall back to a default).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
+from glmav_observer.estimation import EForm
 from glmav_observer.estimation.bank import DEFAULT_GAMMA
 from glmav_observer.estimation.fdi import FdiConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig
 from glmav_observer.ingest.convert import RawImuScale
+from glmav_observer.ingest.links import DEFAULT_UDP_RECEIVE_BUFFER_BYTES
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
+from glmav_observer.publish.schema import (
+    DEFAULT_DECIMATION,
+    DEFAULT_PREFIX,
+    KINDS,
+    decimation_reason,
+)
+from glmav_toml import Check, ConfigError, TableReader, load_toml, one_of, within
 
 #: The rates the estimator needs (``[rates.min_hz]``): a stream below is asked for.
 #: IMU: the FDI's ``min_imu_rate_hz`` (its residual tests need it); ATTITUDE: 10 Hz (the
@@ -50,24 +59,12 @@ DEFAULT_RATES_HZ: dict[str, float] = {
 }
 
 
-class ConfigError(ValueError):
-    """A bad configuration value: ``file``, ``key`` (dotted) and ``reason``."""
-
-    def __init__(self, file: str, key: str, reason: str) -> None:
-        super().__init__(f"{file}: {key}: {reason}")
-        self.file = file
-        self.key = key
-        self.reason = reason
-
-
 @dataclass(frozen=True, slots=True)
 class ZenohSettings:
     enabled: bool = False
     config: str = ""
-    prefix: str = "glmav"
-    decimation: Mapping[str, int] = field(
-        default_factory=lambda: {"velocity": 1, "active": 1, "health": 1}
-    )
+    prefix: str = DEFAULT_PREFIX
+    decimation: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_DECIMATION))
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,7 +103,7 @@ class ServiceConfig:
     service_id: str = "glmav-observer"
     links: tuple[str, ...] = ()
     out: str = ""
-    udp_receive_buffer_bytes: int = 4 * 1024 * 1024
+    udp_receive_buffer_bytes: int = DEFAULT_UDP_RECEIVE_BUFFER_BYTES
     request_rates: bool = True
     ingest: IngestConfig = field(default_factory=IngestConfig)
     estimation: EstimatorConfig = field(default_factory=EstimatorConfig)
@@ -135,28 +132,7 @@ class ServiceConfig:
         return out
 
 
-# ---------------------------------------------------------------------- validation helpers
-Check = Callable[[Any], str | None]
-
-
-def _ratio(x: Any) -> str | None:
-    return None if 0 < x <= 1 else "must be in (0, 1]"
-
-
-def _num(x: float) -> str:
-    return str(x) if isinstance(x, int) else f"{x:g}"
-
-
-def _within(lo: float, hi: float, *, lo_open: bool = False) -> Check:
-    """A closed range [lo, hi] (or (lo, hi] with ``lo_open``): every value has one."""
-
-    def check(x: Any) -> str | None:
-        ok = (lo < x if lo_open else lo <= x) and x <= hi
-        return None if ok else f"must be in {'(' if lo_open else '['}{_num(lo)}, {_num(hi)}]"
-
-    return check
-
-
+# ---------------------------------------------------------------------- checks
 def _ip_address(x: Any) -> str | None:
     import ipaddress
 
@@ -188,56 +164,56 @@ def _key_prefix(x: Any) -> str | None:
 #: Upper bounds are far above any useful value, below what exhausts memory or time.
 _BOUNDS: dict[str, Check] = {
     # [ingest] clock
-    "latency_window_s": _within(0.0, 1.0),
-    "reset_backwards_s": _within(0.0, 3600.0, lo_open=True),
-    "jump_forward_s": _within(0.0, 3600.0, lo_open=True),
-    "gap_s": _within(0.0, 60.0, lo_open=True),
-    "confirm_samples": _within(1, 1000),
-    "confirm_forward_s": _within(0.0, 3600.0, lo_open=True),
-    "conflict_samples": _within(1, 100_000),
-    "conflict_window_s": _within(0.0, 600.0, lo_open=True),
+    "latency_window_s": within(0.0, 1.0),
+    "reset_backwards_s": within(0.0, 3600.0, lo_open=True),
+    "jump_forward_s": within(0.0, 3600.0, lo_open=True),
+    "gap_s": within(0.0, 60.0, lo_open=True),
+    "confirm_samples": within(1, 1000),
+    "confirm_forward_s": within(0.0, 3600.0, lo_open=True),
+    "conflict_samples": within(1, 100_000),
+    "conflict_window_s": within(0.0, 600.0, lo_open=True),
     # [ingest.raw_imu]
-    "accel_mps2_per_lsb": _within(0.0, 1.0, lo_open=True),
-    "gyro_radps_per_lsb": _within(0.0, 1.0, lo_open=True),
+    "accel_mps2_per_lsb": within(0.0, 1.0, lo_open=True),
+    "gyro_radps_per_lsb": within(0.0, 1.0, lo_open=True),
     # [estimation]
-    "g_mps2": _within(9.7, 9.9),
-    "health_rate_hz": _within(0.0, 1000.0, lo_open=True),
-    "max_gap_s": _within(0.0, 60.0, lo_open=True),
-    "handover_contamination_mps": _within(0.0, 100.0, lo_open=True),
-    "metrics_skip_s": _within(0.0, 3600.0),
-    "gamma_full_min": _within(0.0, 1000.0, lo_open=True),
-    "gamma_full_max": _within(0.0, 1000.0, lo_open=True),
+    "g_mps2": within(9.7, 9.9),
+    "health_rate_hz": within(0.0, 1000.0, lo_open=True),
+    "max_gap_s": within(0.0, 60.0, lo_open=True),
+    "handover_contamination_mps": within(0.0, 100.0, lo_open=True),
+    "metrics_skip_s": within(0.0, 3600.0),
+    "gamma_full_min": within(0.0, 1000.0, lo_open=True),
+    "gamma_full_max": within(0.0, 1000.0, lo_open=True),
     # [fdi]
-    "sigma_meas_mps": _within(0.0, 10.0, lo_open=True),
-    "vet_delay_s": _within(0.0, 60.0, lo_open=True),
-    "bias_window_s": _within(0.0, 600.0, lo_open=True),
-    "warmup_s": _within(1.0, 600.0),
-    "gate_sigma": _within(0.0, 100.0, lo_open=True),
-    "dropout_samples": _within(1, 10_000),
-    "missing_timeout_s": _within(0.0, 60.0, lo_open=True),
-    "freeze_repeats": _within(1, 10_000),
-    "bias_samples": _within(1, 10_000),
-    "bias_threshold_mps": _within(0.0, 100.0, lo_open=True),
-    "noise_samples": _within(1, 10_000),
-    "noise_ratio_threshold": _within(0.0, 1e6, lo_open=True),
-    "k_isolate": _within(1, 10_000),
-    "recovery_s": _within(0.0, 3600.0, lo_open=True),
-    "sigma_handover_mps": _within(0.0, 100.0, lo_open=True),
-    "sigma_bias_mps2": _within(0.0, 100.0),
-    "accel_noise_density": _within(0.0, 10.0),
-    "min_imu_rate_hz": _within(0.0, 10_000.0, lo_open=True),
-    "sigma_floor_mps": _within(0.0, 10.0, lo_open=True),
-    "scale_samples": _within(1, 100_000),
-    "bias_sigma": _within(0.0, 100.0, lo_open=True),
-    "freeze_motion_mps": _within(0.0, 100.0),
-    "freeze_repeat_rate": _within(0.0, 1.0),
-    "prior_bias_mps2": _within(0.0, 100.0, lo_open=True),
-    "prior_yaw_rad": _within(0.0, 3.2, lo_open=True),
-    "prior_lag_s": _within(0.0, 2.0, lo_open=True),
-    "max_lag_s": _within(0.0, 5.0),
-    "correlation_samples": _within(1.0, 1000.0),
-    "max_bias_mps2": _within(0.0, 100.0, lo_open=True),
-    "change_window_s": _within(0.0, 600.0, lo_open=True),
+    "sigma_meas_mps": within(0.0, 10.0, lo_open=True),
+    "vet_delay_s": within(0.0, 60.0, lo_open=True),
+    "bias_window_s": within(0.0, 600.0, lo_open=True),
+    "warmup_s": within(1.0, 600.0),
+    "gate_sigma": within(0.0, 100.0, lo_open=True),
+    "dropout_samples": within(1, 10_000),
+    "missing_timeout_s": within(0.0, 60.0, lo_open=True),
+    "freeze_repeats": within(1, 10_000),
+    "bias_samples": within(1, 10_000),
+    "bias_threshold_mps": within(0.0, 100.0, lo_open=True),
+    "noise_samples": within(1, 10_000),
+    "noise_ratio_threshold": within(0.0, 1e6, lo_open=True),
+    "k_isolate": within(1, 10_000),
+    "recovery_s": within(0.0, 3600.0, lo_open=True),
+    "sigma_handover_mps": within(0.0, 100.0, lo_open=True),
+    "sigma_bias_mps2": within(0.0, 100.0),
+    "accel_noise_density": within(0.0, 10.0),
+    "min_imu_rate_hz": within(0.0, 10_000.0, lo_open=True),
+    "sigma_floor_mps": within(0.0, 10.0, lo_open=True),
+    "scale_samples": within(1, 100_000),
+    "bias_sigma": within(0.0, 100.0, lo_open=True),
+    "freeze_motion_mps": within(0.0, 100.0),
+    "freeze_repeat_rate": within(0.0, 1.0),
+    "prior_bias_mps2": within(0.0, 100.0, lo_open=True),
+    "prior_yaw_rad": within(0.0, 3.2, lo_open=True),
+    "prior_lag_s": within(0.0, 2.0, lo_open=True),
+    "max_lag_s": within(0.0, 5.0),
+    "correlation_samples": within(1.0, 1000.0),
+    "max_bias_mps2": within(0.0, 100.0, lo_open=True),
+    "change_window_s": within(0.0, 600.0, lo_open=True),
 }
 
 
@@ -249,51 +225,7 @@ def _bounded(name: str) -> Check:
         raise KeyError(f"configuration field {name!r} has no range in config._BOUNDS") from None
 
 
-class _Reader:
-    """Reads typed keys from one TOML table, tracking which keys were used."""
-
-    def __init__(self, file: str, table: Mapping[str, Any], prefix: str) -> None:
-        self.file = file
-        self.table = table
-        self.prefix = prefix
-        self.used: set[str] = set()
-
-    def key(self, name: str) -> str:
-        return f"{self.prefix}{name}"
-
-    def get(self, name: str, kind: type, default: Any, check: Check | None = None) -> Any:
-        self.used.add(name)
-        if name not in self.table:
-            return default
-        value = self.table[name]
-        if kind is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if kind is int and isinstance(value, bool):
-            raise ConfigError(self.file, self.key(name), f"expected an integer, got {value!r}")
-        if not isinstance(value, kind):
-            raise ConfigError(self.file, self.key(name), f"expected {kind.__name__}, got {value!r}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ConfigError(self.file, self.key(name), f"must be finite, got {value!r}")
-        if check is not None:
-            reason = check(value)
-            if reason is not None:
-                raise ConfigError(self.file, self.key(name), f"{reason}, got {value!r}")
-        return value
-
-    def sub(self, name: str) -> _Reader:
-        self.used.add(name)
-        value = self.table.get(name, {})
-        if not isinstance(value, Mapping):
-            raise ConfigError(self.file, self.key(name), "expected a table")
-        return _Reader(self.file, value, f"{self.prefix}{name}.")
-
-    def done(self) -> None:
-        for k in self.table:
-            if k not in self.used:
-                raise ConfigError(self.file, self.key(k), "unknown key")
-
-
-def _fields_from(r: _Reader, default: Any) -> dict[str, Any]:
+def _fields_from(r: TableReader, default: Any) -> dict[str, Any]:
     """Every int/float/bool field of a frozen dataclass, read from ``r`` with its default
     and checked against its range in ``_BOUNDS``."""
     out: dict[str, Any] = {}
@@ -310,33 +242,34 @@ def _fields_from(r: _Reader, default: Any) -> dict[str, Any]:
 
 def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConfig:
     """Validate a parsed TOML document (see ``configs/service.toml``)."""
-    root = _Reader(file, data, "")
+    root = TableReader(file, data, "")
+    d = ServiceConfig()  # every default below comes from the dataclasses, never a literal
     # [service]
     svc = root.sub("service")
-    service_id = svc.get("id", str, "glmav-observer", _name)
-    links_raw = svc.get("links", list, [])
+    service_id = svc.get("id", str, d.service_id, _name)
+    links_raw = svc.get("links", list, list(d.links))
     for i, link in enumerate(links_raw):
         if not isinstance(link, str) or not link:
             raise ConfigError(file, f"service.links[{i}]", "expected a connection string")
-    out = svc.get("out", str, "")
+    out = svc.get("out", str, d.out)
     if out and not out.endswith((".csv", ".jsonl")):
         raise ConfigError(file, "service.out", f"must end in .csv or .jsonl, got {out!r}")
     rcvbuf = svc.get(
-        "udp_receive_buffer_bytes", int, 4 * 1024 * 1024, _within(4096, 1 << 30)
+        "udp_receive_buffer_bytes", int, d.udp_receive_buffer_bytes, within(4096, 1 << 30)
     )  # a C int for setsockopt; 1 GiB is beyond any net.core.rmem_max
     svc.done()
     # [ingest]
     ing = root.sub("ingest")
     base = IngestConfig()
-    max_vehicles = ing.get("max_vehicles", int, base.max_vehicles, _within(1, 254))
-    evict_idle_s = ing.get("evict_idle_s", float, base.evict_idle_s, _within(0, 3600, lo_open=True))
+    max_vehicles = ing.get("max_vehicles", int, base.max_vehicles, within(1, 254))
+    evict_idle_s = ing.get("evict_idle_s", float, base.evict_idle_s, within(0, 3600, lo_open=True))
     imu_fallback_s = ing.get(
-        "imu_fallback_s", float, base.imu_fallback_s, _within(0, 60, lo_open=True)
+        "imu_fallback_s", float, base.imu_fallback_s, within(0, 60, lo_open=True)
     )
     # held samples grow with the window: 1 s holds ~400 samples a vehicle, and no radio
     # that reorders by more is usable for estimation anyway
     reorder_window_s = ing.get(
-        "reorder_window_s", float, base.reorder_window_s, _within(0.0, MAX_REORDER_WINDOW_S)
+        "reorder_window_s", float, base.reorder_window_s, within(0.0, MAX_REORDER_WINDOW_S)
     )
     clock = ClockConfig(**_fields_from(ing, ClockConfig()))
     raw = ing.sub("raw_imu")
@@ -359,16 +292,13 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     # [rates]
     rates = root.sub("rates")
     rate_mode = rates.get(
-        "mode",
-        str,
-        "request",
-        lambda x: None if x in ("request", "observe") else "must be request or observe",
+        "mode", str, "request" if d.request_rates else "observe", one_of("request", "observe")
     )
     request_rates = rate_mode == "request"
-    window_s = rates.get("window_s", float, base.rate_window_s, _within(0, 60, lo_open=True))
-    retry_s = rates.get("retry_s", float, base.rate_retry_s, _within(0, 3600, lo_open=True))
+    window_s = rates.get("window_s", float, base.rate_window_s, within(0, 60, lo_open=True))
+    retry_s = rates.get("retry_s", float, base.rate_retry_s, within(0, 3600, lo_open=True))
     retry_max_s = rates.get(
-        "retry_max_s", float, base.rate_retry_max_s, _within(0, 86400, lo_open=True)
+        "retry_max_s", float, base.rate_retry_max_s, within(0, 86400, lo_open=True)
     )
     if retry_max_s < retry_s:
         raise ConfigError(file, "rates.retry_max_s", f"must be >= retry_s ({retry_s:g})")
@@ -393,7 +323,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
             raise ConfigError(
                 file, f"rates.min_hz.{name}", f"unknown message (one of {sorted(MESSAGE_IDS)})"
             )
-        needed[name] = min_r.get(name, float, 0.0, _within(0, 1000))
+        needed[name] = min_r.get(name, float, 0.0, within(0, 1000))
     min_r.done()
     hz_r.done()
     rates.done()
@@ -415,15 +345,10 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     est = root.sub("estimation")
     e_base = EstimatorConfig()
     gamma = {
-        c: est.get(f"gamma_{c}", float, g, _within(0, 1000, lo_open=True))
+        c: est.get(f"gamma_{c}", float, g, within(0, 1000, lo_open=True))
         for c, g in DEFAULT_GAMMA.items()
     }
-    e_form = est.get(
-        "e_form",
-        str,
-        "exact",
-        lambda s: None if s in ("exact", "small_angle") else "must be exact or small_angle",
-    )
+    e_form = est.get("e_form", str, e_base.e_form, one_of(*get_args(EForm)))
     est_fields = _fields_from(est, e_base)
     est.done()
     # [fdi]
@@ -437,21 +362,19 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     zr = root.sub("zenoh")
     dec_r = zr.sub("decimation")
     zenoh = ZenohSettings(
-        enabled=zr.get("enabled", bool, False),
-        config=zr.get("config", str, ""),
-        prefix=zr.get("prefix", str, "glmav", _key_prefix),
-        decimation={
-            k: dec_r.get(k, int, 1, _within(0, 10_000)) for k in ("velocity", "active", "health")
-        },
+        enabled=zr.get("enabled", bool, d.zenoh.enabled),
+        config=zr.get("config", str, d.zenoh.config),
+        prefix=zr.get("prefix", str, d.zenoh.prefix, _key_prefix),
+        decimation={k: dec_r.get(k, int, DEFAULT_DECIMATION[k], decimation_reason) for k in KINDS},
     )
     dec_r.done()
     zr.done()
     # [rerun]
     rr = root.sub("rerun")
     rerun = RerunSettings(
-        mode=rr.get("mode", str, "off", check_rerun_mode),
-        decimation=rr.get("decimation", int, 1, _within(1, 10_000)),
-        serve_bind=rr.get("serve_bind", str, "127.0.0.1", _ip_address),
+        mode=rr.get("mode", str, d.rerun.mode, check_rerun_mode),
+        decimation=rr.get("decimation", int, d.rerun.decimation, within(1, 10_000)),
+        serve_bind=rr.get("serve_bind", str, d.rerun.serve_bind, _ip_address),
     )
     rr.done()
     # [security] (issue #9): the MAVLink 2 signing key; only frames signed with it pass
@@ -483,7 +406,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     )
 
 
-def _mavlink_out(root: _Reader, file: str) -> MavlinkOutSettings:
+def _mavlink_out(root: TableReader, file: str) -> MavlinkOutSettings:
     """``[mavlink_out]`` (opt-in MAVLink output of the estimate; see configs/service.toml)."""
     r = root.sub("mavlink_out")
     d = MavlinkOutSettings()
@@ -515,10 +438,10 @@ def _mavlink_out(root: _Reader, file: str) -> MavlinkOutSettings:
         statustext=r.get("statustext", bool, d.statustext),
         named_value_float=r.get("named_value_float", bool, d.named_value_float),
         health_rate_hz=r.get(
-            "health_rate_hz", float, d.health_rate_hz, _within(0.0, 1000.0, lo_open=True)
+            "health_rate_hz", float, d.health_rate_hz, within(0.0, 1000.0, lo_open=True)
         ),
         sigma_measured_mps=r.get(
-            "sigma_measured_mps", float, d.sigma_measured_mps, _within(0.0, 100.0, lo_open=True)
+            "sigma_measured_mps", float, d.sigma_measured_mps, within(0.0, 100.0, lo_open=True)
         ),
     )
     r.done()
@@ -587,16 +510,5 @@ def load_config(path: str | Path | None) -> ServiceConfig:
     if path is None:
         return parse_config({}, "<defaults>")
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(str(p), "-", "file not found") from None
-    except UnicodeDecodeError as err:
-        raise ConfigError(
-            str(p), "-", f"not UTF-8 text (byte {err.start}: {err.object[err.start]:#04x})"
-        ) from None
-    except OSError as err:
-        raise ConfigError(str(p), "-", f"cannot read: {err.strerror}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(str(p), "-", f"not valid TOML: {err}") from None
+    data = load_toml(p)
     return parse_config(data, str(p))

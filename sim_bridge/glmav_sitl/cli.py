@@ -17,11 +17,12 @@ import threading
 from collections.abc import Sequence
 from types import FrameType
 
-from glmav_sitl.config import ConfigError
+from glmav_sitl.config import packaged_files
 from glmav_sitl.mavlink.links import LinkError
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.runner import parse_speed, run
 from glmav_sitl.scenario import SENSOR_PROFILES, load_scenario, load_sitl_config, scenario_names
+from glmav_toml import ConfigError
 
 log = logging.getLogger("glmav_sitl")
 
@@ -108,6 +109,13 @@ def _build_parser() -> argparse.ArgumentParser:
         help="list the packaged scenarios",
         description="List the packaged scenarios with their descriptions.",
     )
+    sub.add_parser(
+        "files",
+        help="print the paths of the packaged default files",
+        description="Print the paths of the packaged sitl.toml, vehicle file and scenarios "
+        "(the one copy of each): copy one, edit it and pass it with --config, --vehicle "
+        "or --scenario PATH.",
+    )
     return ap
 
 
@@ -121,6 +129,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from glmav_sitl.fleet import main as fleet_main
 
         return fleet_main(args)
+    if args.command == "files":
+        for path in packaged_files():
+            print(path)
+        return 0
     if args.command == "scenarios":
         for name in scenario_names():
             print(f"{name}: {load_scenario(name).description}")

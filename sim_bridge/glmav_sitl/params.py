@@ -1,10 +1,10 @@
 """Vehicle parameters of the GLMAV model (paper section 2), loaded from TOML.
 
-Each entry of ``configs/vehicle/glmav.toml`` is an inline table
+Each entry of ``glmav_sitl/data/vehicle/glmav.toml`` is an inline table
 ``key = { value = ..., unit = "...", source = "..." }``. Loading checks that every
 known key is present, that its unit is exactly the expected one, that the value is a
 finite number within a physical range, and that a source is given; anything else
-raises :class:`~glmav_sitl.config.ConfigError` naming the file, key and reason.
+raises :class:`~glmav_toml.ConfigError` naming the file, key and reason.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from glmav_sitl.config import ConfigError, data_path, load_toml
+from glmav_sitl.config import data_path
+from glmav_toml import REQUIRED, Check, TableReader, load_toml, within
 
 DEFAULT_VEHICLE = "vehicle/glmav.toml"
 
@@ -98,42 +99,43 @@ class VehicleParams:
 
 def vehicle_params_from_dict(raw: dict[str, Any], path: str | Path) -> VehicleParams:
     """Validate the parsed TOML ``raw`` (see module docstring) into :class:`VehicleParams`."""
+    r = TableReader(path, raw)
+    r.expect(_SPEC)  # an unknown (misspelt) parameter first: it would hide as "missing"
     values: dict[str, float] = {}
-    for key in raw:
-        if key not in _SPEC:
-            raise ConfigError(path, key, f"unknown parameter (known: {', '.join(_SPEC)})")
     for key, (unit, lo, hi, lo_open) in _SPEC.items():
-        if key not in raw:
-            raise ConfigError(path, key, "missing")
-        entry = raw[key]
-        if not isinstance(entry, dict):
-            raise ConfigError(path, key, "expected an inline table {value, unit, source}")
-        extra = set(entry) - {"value", "unit", "source"}
-        if extra:
-            raise ConfigError(path, key, f"unknown fields {sorted(extra)}")
-        v = entry.get("value")
-        if isinstance(v, bool) or not isinstance(v, int | float):
-            raise ConfigError(path, f"{key}.value", f"expected a number, got {v!r}")
-        x = float(v)
-        if not math.isfinite(x):
-            raise ConfigError(path, f"{key}.value", f"must be finite, got {x}")
-        if x < lo or x > hi or (lo_open and x == lo):
-            rng = f"{'(' if lo_open else '['}{lo}, {hi}]"
-            raise ConfigError(path, f"{key}.value", f"{x} {unit} outside the range {rng}")
-        u = entry.get("unit")
-        if u != unit:
-            raise ConfigError(path, f"{key}.unit", f"expected unit {unit!r}, got {u!r}")
-        s = entry.get("source")
-        if not isinstance(s, str) or not s.strip():
-            raise ConfigError(
-                path, f"{key}.source", "a source or 'estimate: reasoning' is required"
-            )
-        values[key] = x
+        if not r.has(key):
+            raise r.error(key, "missing")
+        if not isinstance(raw[key], dict):
+            raise r.error(key, "expected an inline table {value, unit, source}")
+        entry = r.sub(key)
+        values[key] = entry.get("value", float, REQUIRED, _in_range(unit, lo, hi, lo_open))
+        entry.get("unit", str, REQUIRED, _is_unit(unit))
+        entry.get("source", str, REQUIRED, _stated)
+        entry.done()
     if values["gamma1"] * values["gamma2"] > 0.0:
-        raise ConfigError(
-            path, "gamma2.value", "gamma1 and gamma2 must have opposite signs (contra-rotation)"
+        raise r.error(
+            "gamma2.value", "gamma1 and gamma2 must have opposite signs (contra-rotation)"
         )
     return VehicleParams(**values)
+
+
+def _in_range(unit: str, lo: float, hi: float, lo_open: bool) -> Check:
+    """The range of a parameter, in its unit."""
+    in_range = within(lo, hi, lo_open=lo_open)
+
+    def check(x: float) -> str | None:
+        reason = in_range(x)
+        return None if reason is None else f"{reason} {unit}"
+
+    return check
+
+
+def _is_unit(unit: str) -> Check:
+    return lambda u: None if u == unit else f"expected unit {unit!r}"
+
+
+def _stated(source: str) -> str | None:
+    return None if source.strip() else "a source or 'estimate: reasoning' is required"
 
 
 def load_vehicle_params(path: str | Path | None = None) -> VehicleParams:

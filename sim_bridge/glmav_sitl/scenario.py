@@ -3,29 +3,21 @@
 A scenario names its initial state, how the vehicle is flown (closed loop with
 time-tagged setpoints, or open-loop actuator inputs), the wind, the sensor profile
 (``ideal`` or ``autopilot``, see :mod:`glmav_sitl.sensors.autopilot`), sensor noise
-switches, stream rates and scheduled sensor faults. See ``configs/scenarios/*.toml``
+switches, stream rates and scheduled sensor faults. See ``glmav_sitl/data/scenarios/*.toml``
 for commented examples; every key is checked (unknown keys are errors).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from glmav_sitl.config import (
-    ConfigError,
-    check_keys,
-    data_path,
-    get_bool,
-    get_float,
-    get_str,
-    get_table,
-    get_vec,
-    load_toml,
-)
+from glmav_sitl.config import data_path
 from glmav_sitl.wind import Gust, WindConfig
+from glmav_toml import REQUIRED, Check, ConfigError, TableReader, load_toml, one_of, within
 
 # MAVLink streams the simulator emits and their message ids
 STREAM_IDS: dict[str, int] = {
@@ -185,135 +177,107 @@ class Scenario:
     sensor_profile: str = "ideal"  # one of SENSOR_PROFILES
 
 
-def _rates(path: str | Path, table: dict[str, Any], prefix: str) -> dict[str, float]:
-    check_keys(path, table, set(STREAM_IDS), prefix=prefix)
-    return {k: get_float(path, table, k, prefix=prefix, lo=0.0, hi=100000.0) for k in table}
+def _rates(r: TableReader) -> dict[str, float]:
+    """A ``rates_hz`` table: stream name -> Hz (0 = off)."""
+    r.expect(STREAM_IDS)
+    return {k: r.get(k, float, REQUIRED, within(0.0, 100000.0)) for k in list(r.table)}
+
+
+def _floats(r: TableReader, default: Any, check: Callable[[str], Check]) -> dict[str, Any]:
+    """Every float field of the dataclass instance ``default``, read from ``r`` (absent:
+    the field's default) and checked with ``check(field name)``."""
+    return {
+        f.name: r.get(f.name, float, getattr(default, f.name), check(f.name))
+        for f in fields(default)
+        if isinstance(getattr(default, f.name), float)
+    }
+
+
+#: [imu] fields that divide: strictly positive
+_IMU_POSITIVE = frozenset({"raw_accel_lsb_mps2", "raw_gyro_lsb_radps"})
 
 
 def load_sitl_config(path: str | Path | None = None) -> SitlConfig:
-    """Load ``sitl.toml`` (default: the packaged copy)."""
+    """Load ``sitl.toml`` (default: the packaged copy); absent keys take the defaults of
+    :class:`SitlConfig` and the classes it holds."""
     p = Path(path) if path is not None else data_path("sitl.toml")
-    raw = load_toml(p)
-    check_keys(
-        p,
-        raw,
-        {
-            "dt_s",
-            "control_rate_hz",
-            "sysid",
-            "compid",
-            "home",
-            "start_unix_s",
-            "rates_hz",
-            "imu",
-            "attitude",
-            "local_position",
-            "controller",
-            "autopilot",
-        },
+    r = TableReader(p, load_toml(p))
+    d = SitlConfig()
+    home = r.sub("home")
+    home_lat_deg = home.get("lat_deg", float, d.home_lat_deg, within(-90, 90))
+    home_lon_deg = home.get("lon_deg", float, d.home_lon_deg, within(-180, 180))
+    home_alt_m = home.get("alt_m", float, d.home_alt_m, within(-500, 1e4))
+    home.done()
+    imu_r = r.sub("imu")
+    imu = ImuConfig(
+        **_floats(imu_r, d.sensors.imu, lambda k: within(0.0, 1e3, lo_open=k in _IMU_POSITIVE))
     )
-    home = get_table(p, raw, "home")
-    check_keys(p, home, {"lat_deg", "lon_deg", "alt_m"}, prefix="home.")
-    imu_t = get_table(p, raw, "imu")
-    imu_keys = set(ImuConfig.__dataclass_fields__)
-    check_keys(p, imu_t, imu_keys, prefix="imu.")
-    imu = ImuConfig(**{k: get_float(p, imu_t, k, prefix="imu.", lo=0.0, hi=1e3) for k in imu_t})
-    for k in ("raw_accel_lsb_mps2", "raw_gyro_lsb_radps"):
-        if getattr(imu, k) <= 0.0:
-            raise ConfigError(p, f"imu.{k}", "must be > 0")
-    att = get_table(p, raw, "attitude")
-    check_keys(p, att, {"angle_sigma_rad"}, prefix="attitude.")
-    lp = get_table(p, raw, "local_position")
-    check_keys(p, lp, {"velocity_sigma_mps", "position_sigma_m"}, prefix="local_position.")
-    ctl = get_table(p, raw, "controller")
-    check_keys(p, ctl, set(ControllerGains.__dataclass_fields__), prefix="controller.")
-    gains = ControllerGains(
-        **{k: get_float(p, ctl, k, prefix="controller.", lo=0.0, hi=1e4, lo_open=True) for k in ctl}
+    imu_r.done()
+    att = r.sub("attitude")
+    attitude_sigma_rad = att.get(
+        "angle_sigma_rad", float, d.sensors.attitude_sigma_rad, within(0.0, 1.0)
     )
-    sysid = get_float(p, raw, "sysid", default=1.0, lo=1.0, hi=255.0)
-    compid = get_float(p, raw, "compid", default=1.0, lo=1.0, hi=255.0)
-    if sysid != int(sysid) or compid != int(compid):
-        raise ConfigError(p, "sysid", "sysid and compid must be integers")
-    d = SensorConfig()
-    return SitlConfig(
-        dt_s=get_float(p, raw, "dt_s", default=1e-3, lo=1e-6, hi=0.01),
-        control_rate_hz=get_float(p, raw, "control_rate_hz", default=250.0, lo=10.0, hi=10000.0),
-        sysid=int(sysid),
-        compid=int(compid),
-        home_lat_deg=get_float(p, home, "lat_deg", prefix="home.", default=47.5867, lo=-90, hi=90),
-        home_lon_deg=get_float(p, home, "lon_deg", prefix="home.", default=7.5654, lo=-180, hi=180),
-        home_alt_m=get_float(p, home, "alt_m", prefix="home.", default=260.0, lo=-500, hi=1e4),
-        start_unix_s=get_float(p, raw, "start_unix_s", default=1.7e9, lo=0.0, hi=4e9),
-        rates_hz=_rates(p, get_table(p, raw, "rates_hz"), "rates_hz."),
-        sensors=SensorConfig(
+    att.done()
+    lp = r.sub("local_position")
+    velocity_sigma_mps = lp.get(
+        "velocity_sigma_mps", float, d.sensors.velocity_sigma_mps, within(0.0, 10.0)
+    )
+    position_sigma_m = lp.get(
+        "position_sigma_m", float, d.sensors.position_sigma_m, within(0.0, 100.0)
+    )
+    lp.done()
+    ctl = r.sub("controller")
+    gains = ControllerGains(**_floats(ctl, d.gains, lambda _: within(0.0, 1e4, lo_open=True)))
+    ctl.done()
+    cfg = SitlConfig(
+        dt_s=r.get("dt_s", float, d.dt_s, within(1e-6, 0.01)),
+        control_rate_hz=r.get("control_rate_hz", float, d.control_rate_hz, within(10.0, 1e4)),
+        sysid=r.get("sysid", int, d.sysid, within(1, 255)),
+        compid=r.get("compid", int, d.compid, within(1, 255)),
+        home_lat_deg=home_lat_deg,
+        home_lon_deg=home_lon_deg,
+        home_alt_m=home_alt_m,
+        start_unix_s=r.get("start_unix_s", float, d.start_unix_s, within(0.0, 4e9)),
+        rates_hz=_rates(r.sub("rates_hz")),
+        sensors=replace(
+            d.sensors,
             imu=imu,
-            attitude_sigma_rad=get_float(
-                p,
-                att,
-                "angle_sigma_rad",
-                prefix="attitude.",
-                default=d.attitude_sigma_rad,
-                lo=0.0,
-                hi=1.0,
-            ),
-            velocity_sigma_mps=get_float(
-                p,
-                lp,
-                "velocity_sigma_mps",
-                prefix="local_position.",
-                default=d.velocity_sigma_mps,
-                lo=0.0,
-                hi=10.0,
-            ),
-            position_sigma_m=get_float(
-                p,
-                lp,
-                "position_sigma_m",
-                prefix="local_position.",
-                default=d.position_sigma_m,
-                lo=0.0,
-                hi=100.0,
-            ),
+            attitude_sigma_rad=attitude_sigma_rad,
+            velocity_sigma_mps=velocity_sigma_mps,
+            position_sigma_m=position_sigma_m,
         ),
         gains=gains,
-        autopilot=_autopilot(p, get_table(p, raw, "autopilot")),
+        autopilot=_autopilot(r.sub("autopilot")),
     )
+    r.done()
+    return cfg
 
 
-def _autopilot(p: Path, t: dict[str, Any]) -> AutopilotProfileConfig:
+#: [autopilot] rates that divide: strictly positive
+_AUTOPILOT_POSITIVE = frozenset(
+    {"imu_rate_hz", "ahrs_rate_hz", "gps_rate_hz", "ahrs_rate_filter_hz"}
+)
+
+
+def _autopilot(r: TableReader) -> AutopilotProfileConfig:
     """The ``[autopilot]`` table: every key optional (defaults above), bounds checked."""
-    pre = "autopilot."
     d = AutopilotProfileConfig()
-    vec_keys = {
-        "vibration_harmonics",
-        "vibration_harmonic_weights",
-        "vibration_accel_mps2",
-        "vibration_gyro_radps",
-    }
-    check_keys(p, t, set(AutopilotProfileConfig.__dataclass_fields__), prefix=pre)
-    kw: dict[str, Any] = {}
-    positive = {"imu_rate_hz", "ahrs_rate_hz", "gps_rate_hz", "ahrs_rate_filter_hz"}
-    for k, v in t.items():
-        if k == "rates_hz":
-            kw[k] = _rates(p, get_table(p, t, k, prefix=pre), pre + "rates_hz.")
-        elif k in vec_keys:
-            three = k.endswith(("mps2", "radps"))  # per axis; the harmonics: any number >= 1
-            if not three and v == []:
-                raise ConfigError(p, pre + k, "needs at least one entry")
-            n = 3 if three or not isinstance(v, list) else len(v)
-            kw[k] = get_vec(p, t, k, n, prefix=pre, lo=0.0, hi=1e3)
-        else:
-            kw[k] = get_float(p, t, k, prefix=pre, lo=0.0, hi=1e5, lo_open=k in positive)
-    cfg = replace(d, **kw)
+    kw = _floats(r, d, lambda k: within(0.0, 1e5, lo_open=k in _AUTOPILOT_POSITIVE))
+    for k in ("vibration_harmonics", "vibration_harmonic_weights"):  # any number >= 1
+        kw[k] = r.vector(k, None, getattr(d, k), within(0.0, 1e3))
+    for k in ("vibration_accel_mps2", "vibration_gyro_radps"):  # per axis
+        kw[k] = r.vector(k, 3, getattr(d, k), within(0.0, 1e3))
+    kw["rates_hz"] = _rates(r.sub("rates_hz"))
+    r.done()
+    cfg = AutopilotProfileConfig(**kw)
     if len(cfg.vibration_harmonics) != len(cfg.vibration_harmonic_weights):
-        raise ConfigError(
-            p, pre + "vibration_harmonic_weights", "needs one weight per vibration_harmonics entry"
+        raise r.error(
+            "vibration_harmonic_weights", "needs one weight per vibration_harmonics entry"
         )
     filt = filter_delay_s(cfg)
     if cfg.velocity_lag_s < filt:
-        raise ConfigError(
-            p,
-            pre + "velocity_lag_s",
+        raise r.error(
+            "velocity_lag_s",
             f"{cfg.velocity_lag_s} s is below the filter's own delay {filt:.4f} s "
             "(velocity_filter_tau_s at gps_rate_hz)",
         )
@@ -333,238 +297,167 @@ def filter_delay_s(cfg: AutopilotProfileConfig) -> float:
     return (1.0 - a) / a * period_s
 
 
-def _pair(path: str | Path, t: dict[str, Any], key: str, prefix: str) -> tuple[float, float] | None:
-    """``"trim"`` -> None, else a pair of numbers."""
-    v = t.get(key, "trim")
-    if v == "trim":
+def _pair(r: TableReader, key: str) -> tuple[float, float] | None:
+    """``"trim"`` (the default) -> None, else a pair of rotor speeds, rad/s."""
+    if r.table.get(key, "trim") == "trim":
+        r.used.add(key)
         return None
-    a, b = get_vec(path, t, key, 2, prefix=prefix, lo=0.0, hi=10000.0)
+    a, b = r.vector(key, 2, check=within(0.0, 10000.0))
     return (a, b)
 
 
 def _v3(
-    path: str | Path,
-    t: dict[str, Any],
-    key: str,
-    prefix: str,
-    default: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    r: TableReader, key: str, default: Any = (0.0, 0.0, 0.0), check: Check | None = None
 ) -> tuple[float, float, float]:
-    a, b, c = get_vec(path, t, key, 3, prefix=prefix, default=default)
+    a, b, c = r.vector(key, 3, default, check)
     return (a, b, c)
 
 
-def scenario_from_dict(raw: dict[str, Any], path: str | Path) -> Scenario:
-    p = path
-    check_keys(
-        p,
-        raw,
-        {
-            "name",
-            "description",
-            "duration_s",
-            "dt_s",
-            "control",
-            "initial",
-            "open_loop",
-            "setpoints",
-            "wind",
-            "sensors",
-            "rates_hz",
-            "faults",
-            "sensor_profile",
-        },
+def _swash(r: TableReader, key: str) -> tuple[float, float]:
+    a, b = r.vector(key, 2, (0.0, 0.0), within(-1.0, 1.0))
+    return (a, b)
+
+
+def _default(cls: type, name: str) -> Any:
+    """The declared default of field ``name`` of dataclass ``cls``."""
+    return {f.name: f.default for f in fields(cls)}[name]
+
+
+_SETPOINT_KINDS = ("position", "velocity", "turn", "hold", "idle")
+_FAULT_KINDS = ("dropout", "freeze", "bias", "noise", "accel_bias")
+#: a time from the start of the run, s
+_TIME_S = within(0.0, math.inf)
+
+
+def _setpoint(sp: TableReader) -> Setpoint:
+    kind = sp.get("kind", str, REQUIRED, one_of(*_SETPOINT_KINDS))
+    pos = _v3(sp, "position_ned_m") if sp.has("position_ned_m") else None
+    sp.used.add("position_ned_m")
+    if kind == "position" and pos is None:
+        raise sp.error("position_ned_m", "required for kind = 'position'")
+    out = Setpoint(
+        t_s=sp.get("t_s", float, REQUIRED, _TIME_S),
+        kind=kind,
+        position_ned_m=pos,
+        velocity_ned_mps=_v3(sp, "velocity_ned_mps", _default(Setpoint, "velocity_ned_mps")),
+        yaw_rad=sp.get("yaw_rad", float, None, within(-10.0, 10.0)),
+        speed_mps=sp.get("speed_mps", float, _default(Setpoint, "speed_mps"), within(0.0, 50.0)),
+        turn_rate_radps=sp.get(
+            "turn_rate_radps", float, _default(Setpoint, "turn_rate_radps"), within(-5.0, 5.0)
+        ),
+        climb_rate_mps=sp.get(
+            "climb_rate_mps", float, _default(Setpoint, "climb_rate_mps"), within(-10.0, 10.0)
+        ),
     )
-    init = get_table(p, raw, "initial")
-    check_keys(
-        p,
-        init,
-        {
-            "position_ned_m",
-            "velocity_body_mps",
-            "euler_rad",
-            "omega_body_radps",
-            "rotor_radps",
-            "swash_rad",
-        },
-        prefix="initial.",
-    )
-    ol = get_table(p, raw, "open_loop")
-    check_keys(p, ol, {"rotor_radps", "swash_rad"}, prefix="open_loop.")
-    control = get_str(
-        p, raw, "control", default="closed_loop", choices=("closed_loop", "open_loop")
-    )
-    sps_raw = raw.get("setpoints", [])
-    if not isinstance(sps_raw, list):
-        raise ConfigError(p, "setpoints", "expected an array of tables [[setpoints]]")
-    setpoints = []
-    sp_keys = {
-        "t_s",
-        "kind",
-        "position_ned_m",
-        "velocity_ned_mps",
-        "yaw_rad",
-        "speed_mps",
-        "turn_rate_radps",
-        "climb_rate_mps",
-    }
-    for i, sp in enumerate(sps_raw):
-        pre = f"setpoints[{i}]."
-        if not isinstance(sp, dict):
-            raise ConfigError(p, pre[:-1], "expected a table")
-        check_keys(p, sp, sp_keys, prefix=pre)
-        kind = get_str(
-            p, sp, "kind", prefix=pre, choices=("position", "velocity", "turn", "hold", "idle")
-        )
-        pos = _v3(p, sp, "position_ned_m", pre) if "position_ned_m" in sp else None
-        if kind == "position" and pos is None:
-            raise ConfigError(p, pre + "position_ned_m", "required for kind = 'position'")
-        yaw = (
-            get_float(p, sp, "yaw_rad", prefix=pre, lo=-10.0, hi=10.0) if "yaw_rad" in sp else None
-        )
-        setpoints.append(
-            Setpoint(
-                t_s=get_float(p, sp, "t_s", prefix=pre, lo=0.0),
-                kind=kind,
-                position_ned_m=pos,
-                velocity_ned_mps=_v3(p, sp, "velocity_ned_mps", pre),
-                yaw_rad=yaw,
-                speed_mps=get_float(p, sp, "speed_mps", prefix=pre, default=0.0, lo=0.0, hi=50.0),
-                turn_rate_radps=get_float(
-                    p, sp, "turn_rate_radps", prefix=pre, default=0.0, lo=-5.0, hi=5.0
-                ),
-                climb_rate_mps=get_float(
-                    p, sp, "climb_rate_mps", prefix=pre, default=0.0, lo=-10.0, hi=10.0
-                ),
-            )
-        )
-    setpoints.sort(key=lambda s: s.t_s)
-    if control == "closed_loop" and not setpoints:
-        setpoints = [Setpoint(0.0, "hold")]
-    wind_t = get_table(p, raw, "wind")
-    check_keys(p, wind_t, {"constant_ned_mps", "gusts", "turbulence"}, prefix="wind.")
+    sp.done()
+    return out
+
+
+def _wind(w: TableReader) -> WindConfig:
+    d = WindConfig()
     gusts = []
-    g_raw = wind_t.get("gusts", [])
-    if not isinstance(g_raw, list):
-        raise ConfigError(p, "wind.gusts", "expected an array of tables [[wind.gusts]]")
-    for i, g in enumerate(g_raw):
-        pre = f"wind.gusts[{i}]."
-        if not isinstance(g, dict):
-            raise ConfigError(p, pre[:-1], "expected a table")
-        check_keys(p, g, {"t_start_s", "duration_s", "amplitude_ned_mps"}, prefix=pre)
+    for g in w.tables("gusts"):
         gusts.append(
             Gust(
-                get_float(p, g, "t_start_s", prefix=pre, lo=0.0),
-                get_float(p, g, "duration_s", prefix=pre, lo=0.0, lo_open=True),
-                _v3(p, g, "amplitude_ned_mps", pre),
+                g.get("t_start_s", float, REQUIRED, _TIME_S),
+                g.get("duration_s", float, REQUIRED, within(0.0, math.inf, lo_open=True)),
+                _v3(g, "amplitude_ned_mps"),
             )
         )
-    turb = get_table(p, wind_t, "turbulence", prefix="wind.")
-    check_keys(p, turb, {"sigma_mps", "time_constant_s"}, prefix="wind.turbulence.")
-    ts = turb.get("sigma_mps", 0.0)
-    if isinstance(ts, list):
-        sig = _v3(p, turb, "sigma_mps", "wind.turbulence.")
-    else:
-        s = get_float(p, turb, "sigma_mps", prefix="wind.turbulence.", default=0.0, lo=0.0, hi=20.0)
-        sig = (s, s, s)
+        g.done()
+    turb = w.sub("turbulence")
+    if isinstance(turb.table.get("sigma_mps"), list):  # per axis
+        sigma = _v3(turb, "sigma_mps", check=within(0.0, 20.0))
+    else:  # the same on every axis
+        s = turb.get("sigma_mps", float, d.turbulence_sigma_mps[0], within(0.0, 20.0))
+        sigma = (s, s, s)
     wind = WindConfig(
-        constant_ned_mps=_v3(p, wind_t, "constant_ned_mps", "wind."),
+        constant_ned_mps=_v3(w, "constant_ned_mps", d.constant_ned_mps),
         gusts=tuple(gusts),
-        turbulence_sigma_mps=sig,
-        turbulence_time_constant_s=get_float(
-            p, turb, "time_constant_s", prefix="wind.turbulence.", default=1.0, lo=1e-3, hi=1e3
+        turbulence_sigma_mps=sigma,
+        turbulence_time_constant_s=turb.get(
+            "time_constant_s", float, d.turbulence_time_constant_s, within(1e-3, 1e3)
         ),
     )
-    sens = get_table(p, raw, "sensors")
-    check_keys(p, sens, {"noise", "bias", "noise_scale", "bias_scale"}, prefix="sensors.")
+    turb.done()
+    w.done()
+    return wind
+
+
+def _fault(fr: TableReader) -> Fault:
+    kind = fr.get("kind", str, REQUIRED, one_of(*_FAULT_KINDS))
+    sensor = fr.get(
+        "sensor",
+        str,
+        "accel" if kind == "accel_bias" else "velocity",
+        one_of("velocity", "accel"),
+    )
+    t0 = fr.get("t_start_s", float, REQUIRED, _TIME_S)
+    t1 = fr.get("t_end_s", float, math.inf, within(t0, math.inf))
+    if sensor == "velocity":
+        if kind == "accel_bias":
+            raise fr.error("kind", "accel_bias applies to sensor = 'accel'")
+        fault = Fault(
+            sensor,
+            kind,
+            t0,
+            t1,
+            axis=fr.get("axis", str, REQUIRED, one_of("n", "e", "d")),
+            magnitude=fr.get(
+                "magnitude", float, _default(Fault, "magnitude"), within(-100.0, 100.0)
+            ),
+        )
+    else:
+        if kind not in ("accel_bias", "bias"):
+            raise fr.error("kind", "the accelerometer supports kind = 'accel_bias'")
+        fault = Fault("accel", "accel_bias", t0, t1, vector=_v3(fr, "vector"))
+    fr.done()
+    return fault
+
+
+def scenario_from_dict(raw: dict[str, Any], path: str | Path) -> Scenario:
+    """Validate a parsed scenario file; absent keys take their documented defaults."""
+    r = TableReader(path, raw)
+    control = r.get("control", str, "closed_loop", one_of("closed_loop", "open_loop"))
+    setpoints = sorted((_setpoint(sp) for sp in r.tables("setpoints")), key=lambda s: s.t_s)
+    if control == "closed_loop" and not setpoints:
+        setpoints = [Setpoint(0.0, "hold")]
+    sens = r.sub("sensors")
+    sd = SensorConfig()
     sensors: dict[str, Any] = {
-        "noise": get_bool(p, sens, "noise", prefix="sensors.", default=True),
-        "bias": get_bool(p, sens, "bias", prefix="sensors.", default=True),
-        "noise_scale": get_float(
-            p, sens, "noise_scale", prefix="sensors.", default=1.0, lo=0.0, hi=100.0
-        ),
-        "bias_scale": get_float(
-            p, sens, "bias_scale", prefix="sensors.", default=1.0, lo=0.0, hi=100.0
-        ),
+        "noise": sens.get("noise", bool, sd.noise),
+        "bias": sens.get("bias", bool, sd.bias),
+        "noise_scale": sens.get("noise_scale", float, sd.noise_scale, within(0.0, 100.0)),
+        "bias_scale": sens.get("bias_scale", float, sd.bias_scale, within(0.0, 100.0)),
     }
-    f_raw = raw.get("faults", [])
-    if not isinstance(f_raw, list):
-        raise ConfigError(p, "faults", "expected an array of tables [[faults]]")
-    faults = []
-    for i, fr in enumerate(f_raw):
-        pre = f"faults[{i}]."
-        if not isinstance(fr, dict):
-            raise ConfigError(p, pre[:-1], "expected a table")
-        check_keys(
-            p,
-            fr,
-            {"sensor", "axis", "kind", "t_start_s", "t_end_s", "magnitude", "vector"},
-            prefix=pre,
-        )
-        kind = get_str(
-            p, fr, "kind", prefix=pre, choices=("dropout", "freeze", "bias", "noise", "accel_bias")
-        )
-        sensor = get_str(
-            p,
-            fr,
-            "sensor",
-            prefix=pre,
-            default="accel" if kind == "accel_bias" else "velocity",
-            choices=("velocity", "accel"),
-        )
-        t0 = get_float(p, fr, "t_start_s", prefix=pre, lo=0.0)
-        t1 = (
-            get_float(p, fr, "t_end_s", prefix=pre, default=float("inf"), lo=t0)
-            if "t_end_s" in fr
-            else float("inf")
-        )
-        if sensor == "velocity":
-            if kind == "accel_bias":
-                raise ConfigError(p, pre + "kind", "accel_bias applies to sensor = 'accel'")
-            axis = get_str(p, fr, "axis", prefix=pre, choices=("n", "e", "d"))
-            faults.append(
-                Fault(
-                    sensor,
-                    kind,
-                    t0,
-                    t1,
-                    axis=axis,
-                    magnitude=get_float(
-                        p, fr, "magnitude", prefix=pre, default=0.0, lo=-100.0, hi=100.0
-                    ),
-                )
-            )
-        else:
-            if kind not in ("accel_bias", "bias"):
-                raise ConfigError(p, pre + "kind", "the accelerometer supports kind = 'accel_bias'")
-            faults.append(Fault("accel", "accel_bias", t0, t1, vector=_v3(p, fr, "vector", pre)))
-    ip = init
-    return Scenario(
-        name=get_str(p, raw, "name", default=Path(p).stem),
-        description=get_str(p, raw, "description", default=""),
-        duration_s=get_float(p, raw, "duration_s", default=60.0, lo=0.0, hi=1e6, lo_open=True),
-        dt_s=get_float(p, raw, "dt_s", lo=1e-6, hi=0.01) if "dt_s" in raw else None,
+    sens.done()
+    ip = r.sub("initial")
+    ol = r.sub("open_loop")
+    scenario = Scenario(
+        name=r.get("name", str, Path(path).stem),
+        description=r.get("description", str, ""),
+        duration_s=r.get("duration_s", float, 60.0, within(0.0, 1e6, lo_open=True)),
+        dt_s=r.get("dt_s", float, None, within(1e-6, 0.01)),
         control=control,
-        position_ned_m=_v3(p, ip, "position_ned_m", "initial.", (0.0, 0.0, -10.0)),
-        velocity_body_mps=_v3(p, ip, "velocity_body_mps", "initial."),
-        euler_rad=_v3(p, ip, "euler_rad", "initial."),
-        omega_body_radps=_v3(p, ip, "omega_body_radps", "initial."),
-        rotor_radps=_pair(p, ip, "rotor_radps", "initial."),
-        swash_rad=_swash(p, ip, "swash_rad", "initial."),
-        open_loop_rotor_radps=_pair(p, ol, "rotor_radps", "open_loop."),
-        open_loop_swash_rad=_swash(p, ol, "swash_rad", "open_loop."),
+        position_ned_m=_v3(ip, "position_ned_m", (0.0, 0.0, -10.0)),
+        velocity_body_mps=_v3(ip, "velocity_body_mps"),
+        euler_rad=_v3(ip, "euler_rad"),
+        omega_body_radps=_v3(ip, "omega_body_radps"),
+        rotor_radps=_pair(ip, "rotor_radps"),
+        swash_rad=_swash(ip, "swash_rad"),
+        open_loop_rotor_radps=_pair(ol, "rotor_radps"),
+        open_loop_swash_rad=_swash(ol, "swash_rad"),
         setpoints=tuple(setpoints),
-        wind=wind,
+        wind=_wind(r.sub("wind")),
         sensors=sensors,
-        rates_hz=_rates(p, get_table(p, raw, "rates_hz"), "rates_hz."),
-        faults=tuple(faults),
-        source=str(p),
-        sensor_profile=get_str(p, raw, "sensor_profile", default="ideal", choices=SENSOR_PROFILES),
+        rates_hz=_rates(r.sub("rates_hz")),
+        faults=tuple(_fault(fr) for fr in r.tables("faults")),
+        source=str(path),
+        sensor_profile=r.get("sensor_profile", str, "ideal", one_of(*SENSOR_PROFILES)),
     )
-
-
-def _swash(path: str | Path, t: dict[str, Any], key: str, prefix: str) -> tuple[float, float]:
-    a, b = get_vec(path, t, key, 2, prefix=prefix, default=(0.0, 0.0), lo=-1.0, hi=1.0)
-    return (a, b)
+    for t in (ip, ol, r):
+        t.done()
+    return scenario
 
 
 def scenario_names() -> list[str]:

@@ -272,8 +272,9 @@ def process_log(
     Runs in a worker (a local process or a Dask worker): every argument and result pickles.
     """
     from glmav_observer.app import replay_flight_log, replay_tlog
-    from glmav_observer.config import ConfigError, load_config
+    from glmav_observer.config import load_config
     from glmav_observer.ingest.logfiles import LogError, detect_format
+    from glmav_toml import ConfigError
 
     row: dict[str, Any] = {"log_id": log_id, "path": path, "error": None}
     sink = _Collect()
@@ -510,7 +511,8 @@ Red bands: isolated faults. Every column is in summary.csv.</p>
 
 
 def main(args: argparse.Namespace) -> int:
-    from glmav_observer.config import ConfigError, load_config
+    from glmav_observer.config import load_config
+    from glmav_toml import ConfigError
 
     files, skipped = expand_paths(args.paths)
     missing = [f for f in files if not f.is_file()]

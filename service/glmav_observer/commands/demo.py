@@ -27,9 +27,10 @@ from typing import Any
 
 from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table, serve
 from glmav_observer.commands.demo_mission import MissionLog, fly
-from glmav_observer.config import ConfigError, ServiceConfig, load_config
+from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.publish.sink import Sink
 from glmav_observer.publish.zenoh_sink import ZenohSink
+from glmav_toml import ConfigError
 
 logger = logging.getLogger(__name__)
 

@@ -74,9 +74,10 @@ def main(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from glmav_observer.app import open_sinks, replay_flight_log, replay_tlog
-    from glmav_observer.config import ConfigError, load_config
+    from glmav_observer.config import load_config
     from glmav_observer.ingest.logfiles import LogError, detect_format
     from glmav_observer.publish.file_sink import FileSinkError
+    from glmav_toml import ConfigError
 
     log = Path(args.log)
     if not log.is_file():

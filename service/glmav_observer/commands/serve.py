@@ -77,9 +77,10 @@ def _workers(text: str) -> int:
 
 def main(args: argparse.Namespace) -> int:
     from glmav_observer.app import open_sinks, serve
-    from glmav_observer.config import ConfigError, check_rerun_mode, load_config
+    from glmav_observer.config import check_rerun_mode, load_config
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSinkError
+    from glmav_toml import ConfigError
 
     # default 1: the sharded router does not yet carry every guarantee of the single
     # process (exclusive UDP ports, signing state, sink isolation: docs/deployment.md)

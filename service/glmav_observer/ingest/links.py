@@ -95,10 +95,16 @@ def _bind_exclusive_udp(conn: str, host: str, port: int, rcvbuf: int) -> socket.
     return sock
 
 
+#: SO_RCVBUF asked for on UDP links (the OS may cap it: net.core.rmem_max).
+DEFAULT_UDP_RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
+
+
 class Link:
     """One open link: ``read()`` returns the bytes available (one datagram for UDP)."""
 
-    def __init__(self, conn: str, *, udp_receive_buffer_bytes: int = 4 * 1024 * 1024) -> None:
+    def __init__(
+        self, conn: str, *, udp_receive_buffer_bytes: int = DEFAULT_UDP_RECEIVE_BUFFER_BYTES
+    ) -> None:
         self.conn = conn
         self.datagram = conn.startswith(("udpin:", "udpout:", "udp:", "udpbcast:"))
         if conn.endswith(".tlog"):

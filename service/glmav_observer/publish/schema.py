@@ -30,6 +30,27 @@ from glmav_observer.records import (
 STATE_SCHEMA = "glmav.state/1"
 CONFIG_SCHEMA = "glmav.config/1"
 
+#: The key prefix of everything the service publishes, unless configured.
+DEFAULT_PREFIX = "glmav"
+
+#: The key kinds a decimation can be set for (``[zenoh.decimation]``, the sink's
+#: ``decimation`` mapping, the published config), with their defaults: every record.
+KINDS: tuple[str, ...] = ("velocity", "active", "health", "measurement", "truth")
+DEFAULT_DECIMATION: dict[str, int] = dict.fromkeys(KINDS, 1)
+#: Largest decimation (every Nth record): far above any useful value.
+MAX_DECIMATION = 10_000
+
+
+def decimation_reason(every: object) -> str | None:
+    """None if ``every`` is a valid decimation of one kind, else the reason."""
+    if isinstance(every, bool) or not isinstance(every, int) or not 0 <= every <= MAX_DECIMATION:
+        return (
+            f"must be an integer in [0, {MAX_DECIMATION}] "
+            "(1 = every record, N = every Nth, 0 = off)"
+        )
+    return None
+
+
 Schema = dict[str, Any]
 
 _AXES: list[str | None] = ["n", "e", "d"]
@@ -189,7 +210,9 @@ CONFIG: Schema = _object(
         "service_id": {"type": "string"},
         "prefix": {"type": "string"},
         "zenoh_config": {"type": ["string", "null"]},
-        "decimation": {"type": "object", "additionalProperties": {"type": "integer", "minimum": 0}},
+        "decimation": _object(
+            {kind: {"type": "integer", "minimum": 0, "maximum": MAX_DECIMATION} for kind in KINDS}
+        ),
         "config": {"type": "object"},
     }
 )

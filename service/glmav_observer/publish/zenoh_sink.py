@@ -37,6 +37,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from glmav_observer.publish.schema import (
+    CONFIG_SCHEMA,
+    DEFAULT_DECIMATION,
+    DEFAULT_PREFIX,
+    KINDS,
+    STATE_SCHEMA,
+    decimation_reason,
+)
 from glmav_observer.records import (
     CONFIGS,
     HealthRecord,
@@ -50,13 +58,6 @@ if TYPE_CHECKING:
     import zenoh
 
 log = logging.getLogger(__name__)
-
-#: The key kinds a decimation can be set for, with their defaults (publish every record).
-KINDS: tuple[str, ...] = ("velocity", "active", "health", "measurement", "truth")
-DEFAULT_DECIMATION: dict[str, int] = dict.fromkeys(KINDS, 1)
-
-STATE_SCHEMA = "glmav.state/1"
-CONFIG_SCHEMA = "glmav.config/1"
 
 #: The embedded default (mirrored by configs/zenoh/peer-local.json5): a peer listening on
 #: an ephemeral loopback port, trying a local router on tcp/127.0.0.1:7447 (retried in
@@ -274,11 +275,9 @@ def check_decimation(decimation: Mapping[str, int] | None) -> dict[str, int]:
             raise ZenohConfigError(
                 f"zenoh decimation: unknown key kind {kind!r} (known: {', '.join(KINDS)})"
             )
-        if isinstance(every, bool) or not isinstance(every, int) or every < 0:
-            raise ZenohConfigError(
-                f"zenoh decimation.{kind}: {every!r} is not an integer >= 0 "
-                "(1 = every record, N = every Nth, 0 = off)"
-            )
+        reason = decimation_reason(every)
+        if reason is not None:
+            raise ZenohConfigError(f"zenoh decimation.{kind}: {reason}, got {every!r}")
         result[kind] = every
     return result
 
@@ -301,7 +300,7 @@ class ZenohSink:
         session: zenoh.Session,
         *,
         config_name: str | None,
-        prefix: str = "glmav",
+        prefix: str = DEFAULT_PREFIX,
         decimation: Mapping[str, int] | None = None,
         service_id: str,
         effective_config: Mapping[str, Any],
@@ -581,7 +580,7 @@ class ZenohSink:
 def open_zenoh_sink(
     zenoh_config_path: str | os.PathLike[str] | None,
     *,
-    prefix: str = "glmav",
+    prefix: str = DEFAULT_PREFIX,
     decimation: Mapping[str, int] | None = None,
     service_id: str,
     effective_config: Mapping[str, Any],

@@ -44,20 +44,18 @@ Signs (derived in docs/model.md, tested in tests/unit/glmav_sitl):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from glmav_sitl.dynamics import rhs
 from glmav_sitl.params import VehicleParams
 
-N_STATE = 17
 I_POS, I_VEL, I_QUAT, I_RATE, I_ROTOR, I_SWASH = 0, 3, 6, 10, 13, 15
 
 State = list[float]
 # (dx, f_body): the state derivative and the specific force (F_total - weight)/m in FRD
-Derivative = Callable[
-    [Sequence[float], Sequence[float], Sequence[float]], tuple[State, tuple[float, float, float]]
-]
+Derivative = rhs.Derivative
 
 
 @dataclass(frozen=True)
@@ -69,139 +67,10 @@ class ModelOptions:
     gravity: bool = True
 
 
-# The right-hand side of eqs (1)-(10), written once as straight-line Python over scalar
-# names: inputs X0..X16 (state), c1, c2, cx_, cy_ (clipped commands), wn, we, wd (wind,
-# NED); outputs D0..D16 (state derivative) and sfx, sfy, sfz (specific force, FRD).
-# It is compiled into the derivative ``f`` and, inlined four times, into the fused RK4
-# step ``step`` (no lists inside the step: ~2x faster than calling ``f`` four times).
-_RHS = """
-vu = X3; vv = X4; vw = X5; qw = X6; qx = X7; qy = X8; qz = X9
-wp = X10; wq = X11; wr = X12; W1 = X13; W2 = X14; dcx = X15; dcy = X16
-# rotation body -> earth, R = E of eq. (13)
-r11 = 1.0 - 2.0 * (qy * qy + qz * qz)
-r12 = 2.0 * (qx * qy - qw * qz)
-r13 = 2.0 * (qx * qz + qw * qy)
-r21 = 2.0 * (qx * qy + qw * qz)
-r22 = 1.0 - 2.0 * (qx * qx + qz * qz)
-r23 = 2.0 * (qy * qz - qw * qx)
-r31 = 2.0 * (qx * qz - qw * qy)
-r32 = 2.0 * (qy * qz + qw * qx)
-r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
-fx = fy = fz = 0.0
-L = M = N = 0.0
-t_axial = 0.0
-if rotors_on:
-    W1s = W1 * W1
-    W2s = W2 * W2
-    sx = sin(dcx)
-    cxx = cos(dcx)
-    sy = sin(dcy)
-    cyy = cos(dcy)
-    b2 = beta * W2s
-    # eq. (5) in FRD (thrust along -z_b)
-    frx = -b2 * sy * cxx
-    fry = -b2 * sx
-    t_axial = sa * W1s + sb * W2s * cxx * cyy
-    fx = frx
-    fy = fry
-    fz = -t_axial
-    # eq. (10): r_O2 x F with r_O2 = (0, 0, -d)
-    L = d * fry
-    M = -d * frx
-    N = gam1 * W1s + gam2 * W2s
-if aero_on:
-    # wind in body axes R^T w; eq. (6): V_tot = V_prop - V_body + V_wind
-    vprop = dw_gain * sqrt(t_axial) if t_axial > 0.0 else 0.0
-    ax_ = r11 * wn + r21 * we + r31 * wd - vu
-    ay_ = r12 * wn + r22 * we + r32 * wd - vv
-    az_ = r13 * wn + r23 * we + r33 * wd + vprop - vw
-    nrm = sqrt(ax_ * ax_ + ay_ * ay_ + az_ * az_)
-    # eqs (7)-(8): signed quadratic drag
-    fx += kx * ax_ * nrm
-    fy += ky * ay_ * nrm
-    fz += kz * az_ * nrm
-sfx = fx * inv_m
-sfy = fy * inv_m
-sfz = fz * inv_m
-# eq. (1): p_dot = R v
-D0 = r11 * vu + r12 * vv + r13 * vw
-D1 = r21 * vu + r22 * vv + r23 * vw
-D2 = r31 * vu + r32 * vv + r33 * vw
-# eq. (3) with weight (9): v_dot = F/m + g R^T e3 - omega x v
-D3 = sfx + g * r31 - (wq * vw - wr * vv)
-D4 = sfy + g * r32 - (wr * vu - wp * vw)
-D5 = sfz + g * r33 - (wp * vv - wq * vu)
-# attitude kinematics (eq. (2) in quaternion form): q_dot = 1/2 q (0, omega)
-D6 = 0.5 * (-qx * wp - qy * wq - qz * wr)
-D7 = 0.5 * (qw * wp + qy * wr - qz * wq)
-D8 = 0.5 * (qw * wq - qx * wr + qz * wp)
-D9 = 0.5 * (qw * wr + qx * wq - qy * wp)
-# eq. (4): I omega_dot = tau - omega x (I omega)
-D10 = (L - (wq * izz * wr - wr * iyy * wq)) / ixx
-D11 = (M - (wr * ixx * wp - wp * izz * wr)) / iyy
-D12 = (N - (wp * iyy * wq - wq * ixx * wp)) / izz
-# actuator lags
-D13 = (c1 - W1) * inv_tm
-D14 = (c2 - W2) * inv_tm
-D15 = (cx_ - dcx) * inv_ts
-D16 = (cy_ - dcy) * inv_ts
-"""
-
-_CLIP = """
-c1 = u[0]
-c1 = 0.0 if c1 < 0.0 else (wmax if c1 > wmax else c1)
-c2 = u[1]
-c2 = 0.0 if c2 < 0.0 else (wmax if c2 > wmax else c2)
-cx_ = u[2]
-cx_ = -slim if cx_ < -slim else (slim if cx_ > slim else cx_)
-cy_ = u[3]
-cy_ = -slim if cy_ < -slim else (slim if cy_ > slim else cy_)
-wn = wind[0]
-we = wind[1]
-wd = wind[2]
-"""
-
-
-def _indent(code: str) -> str:
-    return "\n".join("    " + ln if ln.strip() else ln for ln in code.strip("\n").split("\n"))
-
-
-def _source() -> str:
-    """Python source of ``f(x, u, wind)`` and ``step(x, u, wind, h)`` from :data:`_RHS`."""
-    n = N_STATE
-    xs = ", ".join(f"X{i}" for i in range(n))
-    ds = ", ".join(f"D{i}" for i in range(n))
-    f_src = (
-        "def f(x, u, wind):\n"
-        + _indent(_CLIP)
-        + f"\n    {xs} = x\n"
-        + _indent(_RHS)
-        + f"\n    return [{ds}], (sfx, sfy, sfz)\n"
-    )
-    body = [_CLIP, f"x0_ = x\n{xs} = x", "h2 = 0.5 * h"]
-    for k, coef in (("k1", "h2"), ("k2", "h2"), ("k3", "h"), ("k4", "")):
-        body.append(_RHS)
-        body.append("\n".join(f"{k}_{i} = D{i}" for i in range(n)))
-        if coef:
-            body.append("\n".join(f"X{i} = x0_[{i}] + {coef} * D{i}" for i in range(n)))
-    body.append("h6 = h / 6.0")
-    body.append(
-        "\n".join(
-            f"o{i} = x0_[{i}] + h6 * (k1_{i} + 2.0 * (k2_{i} + k3_{i}) + k4_{i})" for i in range(n)
-        )
-    )
-    body.append(
-        "nq = 1.0 / sqrt(o6 * o6 + o7 * o7 + o8 * o8 + o9 * o9)\n"
-        "o6 *= nq\no7 *= nq\no8 *= nq\no9 *= nq"
-    )
-    body.append("return [" + ", ".join(f"o{i}" for i in range(n)) + "]")
-    step_src = "def step(x, u, wind, h):\n" + "\n".join(_indent(b) for b in body) + "\n"
-    return f_src + "\n\n" + step_src
-
-
-def _compile(p: VehicleParams, options: ModelOptions | None) -> dict[str, Any]:
+def coefficients(p: VehicleParams, options: ModelOptions | None) -> dict[str, Any]:
+    """The constants of the right-hand side (``rhs.build``'s keyword arguments)."""
     opt = options or ModelOptions()
-    ns: dict[str, Any] = {
+    return {
         "rotors_on": opt.rotors,
         "aero_on": opt.aerodynamics,
         "g": p.g if opt.gravity else 0.0,
@@ -223,12 +92,7 @@ def _compile(p: VehicleParams, options: ModelOptions | None) -> dict[str, Any]:
         "slim": p.swash_limit,
         "inv_tm": 1.0 / p.motor_time_constant,
         "inv_ts": 1.0 / p.swash_time_constant,
-        "sqrt": math.sqrt,
-        "sin": math.sin,
-        "cos": math.cos,
     }
-    exec(compile(_source(), "<glmav_sitl.dynamics.model._RHS>", "exec"), ns)
-    return ns
 
 
 def make_derivative(p: VehicleParams, options: ModelOptions | None = None) -> Derivative:
@@ -237,11 +101,11 @@ def make_derivative(p: VehicleParams, options: ModelOptions | None = None) -> De
     ``wind_ned_mps`` is the wind in earth axes (held constant over a step).
     ``f_body_mps2`` is what an ideal accelerometer at G measures (FRD).
     """
-    f: Derivative = _compile(p, options)["f"]
+    f, _ = rhs.build(**coefficients(p, options))
     return f
 
 
-Stepper = Callable[[Sequence[float], Sequence[float], Sequence[float], float], State]
+Stepper = rhs.Stepper
 
 
 def make_stepper(p: VehicleParams, options: ModelOptions | None = None) -> Stepper:
@@ -250,7 +114,7 @@ def make_stepper(p: VehicleParams, options: ModelOptions | None = None) -> Stepp
     Identical in exact arithmetic to ``rk4_step(make_derivative(p), x, u, wind, h)``
     (tested to rounding); used by the simulator for speed.
     """
-    step: Stepper = _compile(p, options)["step"]
+    _, step = rhs.build(**coefficients(p, options))
     return step
 
 

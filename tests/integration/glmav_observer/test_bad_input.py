@@ -20,12 +20,12 @@ from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
-from sitl_live import SITL, MemorySink, service_test_config
 
 from glmav_observer.app import Service, replay_tlog
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import VelocityRecord, flatten
+from glmav_testkit.sitl_live import SITL, MemorySink, service_test_config
 
 
 def _pack(msg: Any, sysid: int) -> bytes:

@@ -16,9 +16,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from sitl_live import REPO, SITL, fault_scenario, run_live, service_test_config
 
 from glmav_observer.app import replay_tlog
+from glmav_sitl.config import data_path
+from glmav_testkit.sitl_live import SITL, fault_scenario, run_live, service_test_config
 
 T_FAULT_S = 7.0
 # bias 0.5 m/s: the bias test's threshold is max(0.15, 5 s) with s >= the measured residual
@@ -57,7 +58,7 @@ def ten_minute_tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
     uses HIGHRES_IMU and drops the others): half the messages to simulate and replay.
     """
     d = tmp_path_factory.mktemp("sitl")
-    sitl_toml = (REPO / "configs" / "sitl.toml").read_text(encoding="utf-8")
+    sitl_toml = data_path("sitl.toml").read_text(encoding="utf-8")
     sitl_toml = re.sub(r"(?m)^(raw_imu|scaled_imu) = .*$", r"\1 = 0.0", sitl_toml)
     (d / "sitl.toml").write_text(sitl_toml, encoding="utf-8")
     path = d / "gusts-600s.tlog"

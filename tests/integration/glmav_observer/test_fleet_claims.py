@@ -20,10 +20,10 @@ from typing import Any
 
 import pytest
 import zenoh
-from fleet_helpers import OBS, SITL, record_tlog, wait_bound_udp
-from zenoh_helpers import RouterProcess, client_config, client_session, wait_until
 
 from glmav_observer.fleet.claims import CLAIM_PERIOD_S
+from glmav_testkit.fleet_helpers import OBS, SITL, record_tlog, wait_bound_udp
+from glmav_testkit.zenoh_helpers import RouterProcess, client_config, client_session, wait_until
 
 pytestmark = pytest.mark.timeout(240)
 

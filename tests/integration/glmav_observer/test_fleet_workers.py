@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from fleet_helpers import (
+
+from glmav_testkit.fleet_helpers import (
     OBS,
     SITL,
     frames_sent,

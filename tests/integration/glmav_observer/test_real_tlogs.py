@@ -7,11 +7,10 @@ import bisect
 import math
 from pathlib import Path
 
-from sitl_live import MemorySink
-
 from glmav_observer.app import replay_tlog
 from glmav_observer.config import load_config
 from glmav_observer.records import MeasurementRecord, VelocityRecord
+from glmav_testkit.sitl_live import MemorySink
 
 
 def test_small_log_estimates_follow_the_vehicles_local_position_velocity(

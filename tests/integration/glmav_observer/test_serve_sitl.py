@@ -6,11 +6,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from sitl_live import MemorySink, run_live, service_test_config
 
 from glmav_observer.app import replay_tlog
 from glmav_observer.publish.file_sink import FileSink
 from glmav_observer.records import VelocityRecord, flatten
+from glmav_testkit.sitl_live import MemorySink, run_live, service_test_config
 
 
 @pytest.mark.timeout(180)

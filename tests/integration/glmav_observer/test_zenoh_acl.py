@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 import zenoh
-from zenoh_helpers import client_config, client_session, velocity, wait_until
 
 from glmav_observer.publish.zenoh_sink import ZenohConfigError, open_zenoh_sink
+from glmav_testkit.zenoh_helpers import client_config, client_session, velocity, wait_until
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -13,7 +13,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from zenoh_helpers import (
+
+from glmav_observer.publish.zenoh_sink import open_zenoh_sink
+from glmav_testkit.zenoh_helpers import (
     RouterProcess,
     client_config,
     client_session,
@@ -21,8 +23,6 @@ from zenoh_helpers import (
     velocity,
     wait_until,
 )
-
-from glmav_observer.publish.zenoh_sink import open_zenoh_sink
 
 pytestmark = pytest.mark.timeout(90)
 

@@ -20,10 +20,10 @@ from typing import Any
 
 import pytest
 import zenoh
-from zenoh_helpers import RouterProcess, client_config, client_session, wait_until
 
 from glmav_observer.publish.schema import validate
 from glmav_observer.records import CONFIGS
+from glmav_testkit.zenoh_helpers import RouterProcess, client_config, client_session, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 

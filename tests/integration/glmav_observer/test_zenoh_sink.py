@@ -13,15 +13,6 @@ from typing import Any
 import jsonschema
 import pytest
 import zenoh
-from zenoh_helpers import (
-    RouterProcess,
-    client_config,
-    client_session,
-    health,
-    vehicle_stream,
-    velocity,
-    wait_until,
-)
 
 from glmav_observer.publish.schema import SCHEMAS, validate
 from glmav_observer.publish.zenoh_sink import (
@@ -31,6 +22,15 @@ from glmav_observer.publish.zenoh_sink import (
     route,
 )
 from glmav_observer.records import CONFIGS, Record, VelocityRecord
+from glmav_testkit.zenoh_helpers import (
+    RouterProcess,
+    client_config,
+    client_session,
+    health,
+    vehicle_stream,
+    velocity,
+    wait_until,
+)
 
 pytestmark = pytest.mark.timeout(60)
 

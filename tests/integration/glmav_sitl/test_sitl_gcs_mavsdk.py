@@ -14,10 +14,10 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from sitl_helpers import background_run
 
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.simulator import TruthState
+from glmav_testkit.sitl_helpers import background_run
 
 
 def _wait(pred: Callable[[], bool], timeout_s: float, what: str) -> None:

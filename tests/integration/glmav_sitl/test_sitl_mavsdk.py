@@ -10,10 +10,10 @@ from dataclasses import replace
 from typing import Any
 
 import pytest
-from sitl_helpers import background_run
 
 from glmav_sitl.scenario import Setpoint, load_scenario
 from glmav_sitl.simulator import TruthState
+from glmav_testkit.sitl_helpers import background_run
 
 
 @pytest.mark.timeout(90)

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from sitl_helpers import UdpGroundStation
+
+from glmav_testkit.sitl_helpers import UdpGroundStation
 
 EXE = Path(sys.executable).parent / "glmav-sitl"
 

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from sitl_helpers import UdpGroundStation, background_run
 
 from glmav_sitl.runner import run
+from glmav_testkit.sitl_helpers import UdpGroundStation, background_run
 
 RATES = {
     "HEARTBEAT": 1.0,

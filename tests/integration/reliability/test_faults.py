@@ -1,6 +1,6 @@
 """Link faults between the vehicle and the service: loss, reordering, duplicates, delay,
 outages and a vehicle reboot. The simulator sends through the loopback fault proxy
-(``tests/support/faultproxy.py``) to the service; accuracy is the service's RMSE of the
+(``glmav_testkit.faultproxy``) to the service; accuracy is the service's RMSE of the
 active estimate against the simulator's SIM_STATE truth (docs/reliability.md).
 """
 
@@ -12,13 +12,13 @@ import time
 from collections.abc import Callable
 
 import pytest
-from rel_helpers import live_service, wait_until
 
 from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_sitl.runner import run
-from support.faultproxy import FaultSpec, UdpFaultProxy
-from support.faultrun import fly_through_proxy
+from glmav_testkit.faultproxy import FaultSpec, UdpFaultProxy
+from glmav_testkit.faultrun import fly_through_proxy
+from glmav_testkit.rel_helpers import live_service, wait_until
 
 
 @pytest.mark.timeout(30)

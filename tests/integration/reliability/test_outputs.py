@@ -22,8 +22,8 @@ from glmav_observer.cli import main
 from glmav_observer.config import ServiceConfig
 from glmav_observer.publish.file_sink import FileSink
 from glmav_observer.records import HealthRecord
-from support.fuzzgen import sitl_stream
-from support.sinks import MemorySink
+from glmav_testkit.fuzzgen import sitl_stream
+from glmav_testkit.sinks import MemorySink
 
 OBS = [sys.executable, "-m", "glmav_observer.cli"]
 

@@ -10,10 +10,10 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from rel_helpers import live_service, sitl_thread, wait_until
 
 from glmav_observer.config import parse_config
 from glmav_sitl.scenario import load_sitl_config
+from glmav_testkit.rel_helpers import live_service, sitl_thread, wait_until
 
 
 @pytest.mark.timeout(90)

@@ -11,11 +11,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from rel_helpers import live_service, sitl_thread, udp_drops, wait_until
 
 from glmav_observer.config import ConfigError, load_config
 from glmav_observer.ingest.framing import FrameDecoder
-from support.fuzzgen import sitl_stream
+from glmav_testkit.fuzzgen import sitl_stream
+from glmav_testkit.rel_helpers import live_service, sitl_thread, udp_drops, wait_until
 
 KEY = bytes(range(32))
 OTHER_KEY = os.urandom(32)
@@ -55,7 +55,7 @@ def test_decoder_accepts_only_frames_signed_with_its_key() -> None:
     assert len([m for f in signed for m in dec.feed(f)]) == n
 
     # MAVLink 1 cannot be signed: refused with a key
-    from support.fuzzgen import pack  # a MAVLink 1 ATTITUDE from the vehicle
+    from glmav_testkit.fuzzgen import pack  # a MAVLink 1 ATTITUDE from the vehicle
 
     msg = FrameDecoder(datagram=True).feed(unsigned[0])[0]
     dec = FrameDecoder(datagram=True, signing_key=KEY)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from support.soakrun import soak
+from glmav_testkit.soakrun import soak
 
 
 @pytest.mark.slow

@@ -11,9 +11,9 @@ import threading
 from collections.abc import Callable
 
 import pytest
-from rel_helpers import live_service, wait_until
 
 from glmav_sitl.runner import run
+from glmav_testkit.rel_helpers import live_service, wait_until
 
 
 @pytest.mark.timeout(60)

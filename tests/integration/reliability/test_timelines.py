@@ -11,8 +11,8 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.framing import FrameDecoder
 from glmav_observer.records import HealthRecord, Record, VelocityRecord, flatten
-from support.fuzzgen import sitl_stream
-from support.sinks import MemorySink
+from glmav_testkit.fuzzgen import sitl_stream
+from glmav_testkit.sinks import MemorySink
 
 
 def _t_s(msg: Any) -> float | None:

@@ -19,10 +19,10 @@ from typing import Any
 
 import pytest
 import zenoh
-from rel_helpers import wait_until
 
 from glmav_observer.publish.zenoh_sink import open_zenoh_sink
 from glmav_observer.records import VelocityRecord
+from glmav_testkit.rel_helpers import wait_until
 
 pytestmark = pytest.mark.timeout(90)
 

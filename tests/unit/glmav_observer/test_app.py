@@ -163,7 +163,7 @@ def test_superseded_imu_frames_skipped_before_decoding_change_nothing_but_the_co
     vehicle and per link, messages. Mixed in: CRC errors in superseded frames (rejected
     as before), MAVLink 1 frames, a frame from another component, an all-zero payload
     (MAVLink 2 truncates it to one byte), two frames in one datagram (not prefiltered)."""
-    from support.fuzzgen import pack, sitl_stream
+    from glmav_testkit.fuzzgen import pack, sitl_stream
 
     stream = sitl_stream("cruise", duration_s=4.0, seed=2)
     frames: list[bytes] = []

@@ -21,7 +21,6 @@ import pytest
 from numpy.typing import NDArray
 from pymavlink import mavutil
 
-from glmav_sitl.config import ConfigError
 from glmav_sitl.runner import run
 from glmav_sitl.scenario import (
     effective_rates,
@@ -32,6 +31,7 @@ from glmav_sitl.scenario import (
 )
 from glmav_sitl.simulator import Simulator, TruthState
 from glmav_sitl.wind import WindConfig
+from glmav_toml import ConfigError
 
 F = NDArray[np.float64]
 SITL = load_sitl_config()
@@ -244,7 +244,9 @@ def test_profile_rates_apply_only_to_autopilot_and_scenario_rates_win() -> None:
 
 
 def test_bad_profile_settings_name_file_key_and_reason(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"x\.toml: sensor_profile: 'ekf' is not one of"):
+    with pytest.raises(
+        ConfigError, match=r"x\.toml: sensor_profile: must be one of ideal, autopilot, got 'ekf'"
+    ):
         scenario_from_dict({"sensor_profile": "ekf"}, tmp_path / "x.toml")
     bad = tmp_path / "sitl.toml"
     for text, key in (
@@ -258,4 +260,4 @@ def test_bad_profile_settings_name_file_key_and_reason(tmp_path: Path) -> None:
         bad.write_text(text, encoding="utf-8")
         with pytest.raises(ConfigError) as ei:
             load_sitl_config(bad)
-        assert ei.value.key == key and ei.value.path == str(bad)
+        assert ei.value.key == key and ei.value.file == str(bad)

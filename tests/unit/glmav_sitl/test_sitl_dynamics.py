@@ -15,6 +15,7 @@ from glmav_sitl.dynamics.frames import (
 )
 from glmav_sitl.dynamics.model import (
     ModelOptions,
+    coefficients,
     initial_state,
     make_derivative,
     make_stepper,
@@ -236,3 +237,14 @@ def test_fused_stepper_equals_rk4_of_the_derivative(opt: ModelOptions) -> None:
         b = step(x, u, wind, 1e-3)
         assert a == b  # same operations in the same order: bit-identical
         x = b
+
+
+def test_checked_in_rhs_is_the_generators_output() -> None:
+    """rhs.py is generated (ruff and mypy check it as written): after an edit of the
+    template in codegen.py, ``python -m glmav_sitl.dynamics.codegen`` must be rerun."""
+    from glmav_sitl.dynamics import codegen
+
+    assert codegen.TARGET.read_text(encoding="utf-8") == codegen.module_source()
+    assert codegen.main(["--check"]) == 0
+    names = [name for name, _ in codegen.COEFFICIENTS]
+    assert sorted(names) == sorted(coefficients(P, None)), "rhs.build's arguments"

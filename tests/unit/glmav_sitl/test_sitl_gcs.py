@@ -12,13 +12,14 @@ from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from test_sitl_mavlink_encode import MemoryLink, _decode
 
 from glmav_sitl.gcs.autopilot import Mode
 from glmav_sitl.gcs.params import VEHICLE_PARAM_NAMES
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.runner import RunSummary, run
 from glmav_sitl.simulator import TruthState
+from glmav_testkit.sitl_helpers import MemoryLink
+from glmav_testkit.sitl_helpers import decode_mavlink as _decode
 
 GCS = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
 

@@ -7,37 +7,11 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from glmav_sitl.mavlink.links import Link
 from glmav_sitl.mavlink.vehicle import MavlinkVehicle
 from glmav_sitl.scenario import effective_rates, load_scenario
 from glmav_sitl.simulator import Simulator
-
-
-class MemoryLink(Link):
-    """A link whose peer is this test: bytes out are kept, bytes in are queued."""
-
-    def __init__(self) -> None:
-        super().__init__("memory")
-        self.out: list[bytes] = []
-        self.inbox: list[bytes] = []
-
-    def write(self, buf: bytes) -> None:
-        self.out.append(bytes(buf))
-
-    def read(self) -> list[bytes]:
-        data, self.inbox = self.inbox, []
-        return data
-
-    def close(self) -> None:
-        pass
-
-
-def _decode(bufs: list[bytes]) -> list[Any]:
-    p = mavlink2.MAVLink(None)
-    out: list[Any] = []
-    for b in bufs:
-        out += p.parse_buffer(b) or []
-    return out
+from glmav_testkit.sitl_helpers import MemoryLink
+from glmav_testkit.sitl_helpers import decode_mavlink as _decode
 
 
 def _vehicle(scenario: str = "hover", **kw: Any) -> tuple[Simulator, MavlinkVehicle, MemoryLink]:

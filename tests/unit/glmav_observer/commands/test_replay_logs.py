@@ -16,7 +16,7 @@ from glmav_observer.config import load_config
 from glmav_observer.ingest.logfiles import read_streams
 from glmav_observer.publish.schema import validate
 from glmav_observer.records import ReferenceRecord
-from support.sinks import MemorySink
+from glmav_testkit.sinks import MemorySink
 
 
 def test_ekf_velocity_replay_tracks_the_simulator_truth(public_logs: dict[str, Path]) -> None:

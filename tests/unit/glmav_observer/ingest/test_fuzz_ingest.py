@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from glmav_observer.ingest.framing import FrameCounters, FrameDecoder, iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
-from support.fuzzgen import (
+from glmav_testkit.fuzzgen import (
     VEHICLE_SYSID,
     CaseMaker,
     ValidStream,
@@ -31,7 +31,7 @@ from support.fuzzgen import (
     sample_message,
     sitl_stream,
 )
-from support.ingest_harness import Harness, velocity_series
+from glmav_testkit.ingest_harness import Harness, velocity_series
 
 _SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

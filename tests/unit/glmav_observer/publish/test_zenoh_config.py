@@ -109,12 +109,41 @@ def test_decimation_defaults_and_errors() -> None:
     assert check_decimation({"velocity": 5, "truth": 0})["velocity"] == 5
     for bad, message in [
         ({"speed": 1}, "unknown key kind 'speed'"),
-        ({"health": -1}, "decimation.health: -1 is not an integer >= 0"),
-        ({"active": 2.5}, "decimation.active: 2.5"),
-        ({"active": True}, "decimation.active: True"),
+        ({"health": -1}, r"decimation.health: must be an integer in \[0, 10000\].*got -1"),
+        ({"truth": 10_001}, r"decimation.truth: must be an integer in \[0, 10000\].*got 10001"),
+        ({"active": 2.5}, "decimation.active: must be .*got 2.5"),
+        ({"active": True}, "decimation.active: must be .*got True"),
     ]:
         with pytest.raises(ZenohConfigError, match=message):
             check_decimation(bad)
+
+
+def test_one_decimation_check_for_the_file_the_sink_and_the_schema() -> None:
+    """[zenoh.decimation], the sink's mapping and the published config's schema accept the
+    same kinds and the same values (one definition: publish/schema.py)."""
+    from glmav_observer.config import ConfigError, load_config, parse_config
+    from glmav_observer.publish.schema import CONFIG_SCHEMA, MAX_DECIMATION, validate
+
+    assert load_config(None).zenoh.decimation == check_decimation(None)
+    for kind in KINDS:
+        for every in (0, 7, MAX_DECIMATION):
+            parsed = parse_config({"zenoh": {"decimation": {kind: every}}}).zenoh.decimation
+            assert parsed == check_decimation({kind: every})
+            published = {
+                "schema": CONFIG_SCHEMA,
+                "service_id": "s",
+                "prefix": "glmav",
+                "zenoh_config": None,
+                "decimation": parsed,
+                "config": {},
+            }
+            assert validate(published) == []
+            assert validate({**published, "decimation": {**parsed, kind: -1}}) != []
+        for every in (-1, MAX_DECIMATION + 1):
+            with pytest.raises(ConfigError, match=rf"zenoh.decimation.{kind}: must be"):
+                parse_config({"zenoh": {"decimation": {kind: every}}})
+            with pytest.raises(ZenohConfigError, match=rf"decimation.{kind}: must be"):
+                check_decimation({kind: every})
 
 
 def test_shipped_configs_parse_and_keep_multicast_where_documented() -> None:

@@ -42,8 +42,9 @@ from glmav_observer.estimation.vehicle import VehicleEstimator
 from glmav_observer.ingest.links import Link
 from glmav_observer.ingest.samples import AttitudeSample, ImuSample, TruthSample, VelocitySample
 from glmav_observer.records import Record
+from glmav_testkit import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 SITL = str(Path(sys.executable).with_name("glmav-sitl"))
 SCENARIOS = ("cruise", "hover", "climbing-turn", "gusts")
 _SAMPLE_TYPES = (AttitudeSample, ImuSample, TruthSample, VelocitySample)
@@ -118,9 +119,9 @@ def soak(
     ports: list[int] = []
     # the design's streams (HIGHRES_IMU 250 Hz, ATTITUDE 100, LOCAL_POSITION_NED 30,
     # SIM_STATE 50) without RAW_IMU/SCALED_IMU, which the service would ask to stop anyway
-    import glmav_sitl
+    from glmav_sitl.config import data_path
 
-    sitl_toml = Path(glmav_sitl.__file__).with_name("data") / "sitl.toml"
+    sitl_toml = data_path("sitl.toml")
     text = re.sub(r"(?m)^(raw_imu|scaled_imu) = .*$", r"\1 = 0.0", sitl_toml.read_text())
     tmp = tempfile.TemporaryDirectory(prefix="glmav-soak-")
     sitl_cfg = Path(tmp.name) / "sitl.toml"

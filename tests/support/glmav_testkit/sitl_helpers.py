@@ -11,6 +11,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from glmav_sitl.mavlink.links import Link
 from glmav_sitl.runner import RunSummary, run
 
 
@@ -88,3 +89,31 @@ def background_run(**kw: Any) -> Iterator[tuple[threading.Event, list[RunSummary
     assert not th.is_alive(), "simulator did not stop"
     if errors:
         raise errors[0]
+
+
+class MemoryLink(Link):
+    """A simulator link whose peer is the test: bytes out are kept, bytes in are queued."""
+
+    def __init__(self) -> None:
+        super().__init__("memory")
+        self.out: list[bytes] = []
+        self.inbox: list[bytes] = []
+
+    def write(self, buf: bytes) -> None:
+        self.out.append(bytes(buf))
+
+    def read(self) -> list[bytes]:
+        data, self.inbox = self.inbox, []
+        return data
+
+    def close(self) -> None:
+        pass
+
+
+def decode_mavlink(bufs: list[bytes]) -> list[Any]:
+    """Every MAVLink 2 message in ``bufs`` (the simulator's output), decoded."""
+    p = mavlink2.MAVLink(None)
+    out: list[Any] = []
+    for b in bufs:
+        out += p.parse_buffer(b) or []
+    return out

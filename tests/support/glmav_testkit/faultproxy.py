@@ -77,6 +77,9 @@ class UdpFaultProxy:
         self.target = target
         self.rng = random.Random(spec.seed)
         self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # room for bursts while this thread waits for a CPU on a loaded machine: the
+        # faults are the spec's, not the kernel's (capped by net.core.rmem_max)
+        self.front.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
         self.front.bind(listen)
         self.back = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.back.bind(("127.0.0.1", 0))
@@ -117,6 +120,14 @@ class UdpFaultProxy:
     def stats(self) -> dict[str, int]:
         with self._lock:
             return dict(self.counters)
+
+    def pending(self) -> int:
+        """Datagrams scheduled and not yet forwarded (held by the delay, jitter or reorder),
+        from the counters (a datagram leaves the count once its ``forwarded`` is counted)."""
+        with self._lock:
+            c = self.counters
+            scheduled = c["received"] - c["dropped"] - c["blackout"] + c["duplicated"]
+            return scheduled - c["forwarded"] - c["send_errors"]
 
     # ------------------------------------------------------------------ internals
     def _schedule(self, t: float, data: bytes) -> None:

@@ -18,7 +18,7 @@ from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import Record, VelocityRecord
 from glmav_sitl.runner import run
-from support.faultproxy import FaultSpec, UdpFaultProxy
+from glmav_testkit.faultproxy import FaultSpec, UdpFaultProxy
 
 
 def free_udp_port() -> int:
@@ -117,7 +117,13 @@ def fly_through_proxy(
             while time.monotonic() < deadline:
                 dec = svc.decoders.get(conn)
                 st = proxy.stats()
-                if dec is not None and dec.counters.counts["frames_ok"] >= st.get("forwarded", 0):
+                # everything forwarded (nothing held back by the delay) and taken in
+                done = proxy.pending() == 0
+                if (
+                    done
+                    and dec is not None
+                    and dec.counters.counts["frames_ok"] >= st.get("forwarded", 0)
+                ):
                     break
                 time.sleep(0.02)
             pstats = proxy.stats()

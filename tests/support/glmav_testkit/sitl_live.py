@@ -21,8 +21,9 @@ from glmav_observer.commands.demo import scenario_toml
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import Record
+from glmav_testkit import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = REPO_ROOT
 SITL = str(Path(sys.executable).with_name("glmav-sitl"))
 
 

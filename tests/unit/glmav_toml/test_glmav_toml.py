@@ -1,0 +1,88 @@
+"""One way to read and check TOML for the service and the simulator (glmav_toml)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from glmav_observer.config import load_config
+from glmav_sitl.scenario import load_sitl_config
+from glmav_toml import REQUIRED, ConfigError, TableReader, load_toml, one_of, within
+
+
+def test_service_and_simulator_refuse_a_bad_value_the_same_way(tmp_path: Path) -> None:
+    service = tmp_path / "service.toml"
+    service.write_text("[fdi]\nwarmup_s = 0.5\n", encoding="utf-8")
+    sitl = tmp_path / "sitl.toml"
+    sitl.write_text("[imu]\naccel_noise_density = -1.0\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as a:
+        load_config(service)
+    with pytest.raises(ConfigError) as b:
+        load_sitl_config(sitl)
+    assert (a.value.file, a.value.key) == (str(service), "fdi.warmup_s")
+    assert str(a.value) == f"{service}: fdi.warmup_s: must be in [1, 600], got 0.5"
+    assert (b.value.file, b.value.key) == (str(sitl), "imu.accel_noise_density")
+    assert str(b.value) == f"{sitl}: imu.accel_noise_density: must be in [0, 1000], got -1.0"
+
+
+@pytest.mark.parametrize(
+    ("text", "reason"),
+    [
+        (None, "file not found"),
+        ("a = [", "not valid TOML"),
+        (b"\xff\xfe", "not UTF-8 text (byte 0: 0xff)"),
+    ],
+)
+def test_unreadable_files_name_the_file(
+    tmp_path: Path, text: str | bytes | None, reason: str
+) -> None:
+    p = tmp_path / "x.toml"
+    if isinstance(text, bytes):
+        p.write_bytes(text)
+    elif text is not None:
+        p.write_text(text, encoding="utf-8")
+    for load in (load_toml, load_config, load_sitl_config):
+        with pytest.raises(ConfigError, match=f"^{p}: -: ") as e:
+            load(p)
+        assert e.value.reason.startswith(reason)
+
+
+def test_reader_types_ranges_defaults_and_unknown_keys() -> None:
+    r = TableReader("f.toml", {"n": 3, "x": 2, "flag": True, "v": [1, 2.5], "t": {"k": "b"}})
+    assert r.get("n", int, REQUIRED, within(1, 10)) == 3
+    assert r.get("x", float, 0.0) == 2.0 and isinstance(r.get("x", float, 0.0), float)
+    assert r.get("absent", float, 7.5) == 7.5
+    assert r.vector("v", 2) == (1.0, 2.5)
+    t = r.sub("t")
+    assert t.get("k", str, REQUIRED, one_of("a", "b")) == "b"
+    t.done()
+    with pytest.raises(ConfigError, match=r"^f\.toml: flag: unknown key \(known: "):
+        r.done()
+    cases = [
+        (lambda: r.get("flag", int), "flag: expected an integer, got True"),
+        (lambda: r.get("n", int, REQUIRED, within(5, 9)), "n: must be in [5, 9], got 3"),
+        (lambda: r.get("missing", float), "missing: missing"),
+        (lambda: r.vector("v", 3), "v: expected a list of 3 numbers, got [1, 2.5]"),
+        (lambda: r.vector("v", 2, check=within(0, 2)), "v[1]: must be in [0, 2], got 2.5"),
+        (lambda: t.get("k", str, REQUIRED, one_of("a")), "t.k: must be one of a, got 'b'"),
+        (lambda: TableReader("f", {"x": float("nan")}).get("x", float), "x: must be finite"),
+    ]
+    for call, message in cases:
+        with pytest.raises(ConfigError) as e:
+            call()
+        assert str(e.value).split(": ", 1)[1].startswith(message), str(e.value)
+
+
+def test_glmav_toml_imports_neither_package() -> None:
+    """MAVLink stays the only contract: the shared reader depends on neither side."""
+    code = (
+        "import sys, glmav_toml; "
+        "print(sorted(m for m in sys.modules if m.startswith(('glmav_observer', 'glmav_sitl'))))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], check=True, capture_output=True, text=True, timeout=60
+    ).stdout
+    assert out.strip() == "[]"
