@@ -102,7 +102,8 @@ class FaultEvent:
     when the autopilot says its velocity is not aided) name the NED axis isolated. An
     accelerometer fault (``accel_bias``) isolates no axis: ``axis`` is ``"body"``,
     ``t_onset_s`` the estimated change time and ``bias_body_mps2`` the estimated change of
-    the body-frame (FRD) accelerometer bias.
+    the body-frame (FRD) accelerometer bias. A velocity-sensor fault leaves both None: it is
+    isolated after a run of failed tests, and no onset time is estimated for it.
     """
 
     axis: AxisName | Literal["body"]
