@@ -711,6 +711,8 @@ class VehicleEstimator:
         )
 
     def _truth(self, s: TruthSample, out: list[Record]) -> None:
+        # the numpy E, as the truth records have always used (frames.e_flat differs by an
+        # ulp in 7 % of entries: the records would change in their last digit)
         E = e_exact(np.asarray(s.euler_rad)).ravel().tolist()
         v_body = rotate_t_flat(E, s.v_ned_mps)
         out.append(
