@@ -21,7 +21,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from glmav_observer.configurations import CONFIG_MASKS, CONFIGS, DEFAULT_GAMMA, config_index
+from glmav_observer.configurations import (
+    CONFIG_MASKS,
+    CONFIGS,
+    CONFIGURATIONS,
+    DEFAULT_GAMMA,
+    config_index,
+)
 from glmav_observer.estimation.observer import (
     G_MPS2,
     BoolArray,
@@ -73,7 +79,9 @@ def _lost_index(m: tuple[bool, bool, bool]) -> int:
 
 
 #: The lost axis of each configuration in bank order (−1: none), from the table.
-_STANDARD_LOST: tuple[int, ...] = tuple(_lost_index(m) for m in _STANDARD_MASKS)
+_STANDARD_LOST: tuple[int, ...] = tuple(
+    -1 if c.lost_index is None else c.lost_index for c in CONFIGURATIONS
+)
 
 
 def _step_closed_form(  # noqa: PLR0917 -- the inputs of one step, in the API order
