@@ -52,6 +52,7 @@ from benchmarks.baselines import (
 from benchmarks.common import format_goals, format_table, goal, write_result
 from benchmarks.paper import tlog_samples
 from glmav_observer.config import load_config
+from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
 from glmav_observer.estimation.vehicle import VehicleEstimator
 from glmav_observer.ingest.samples import (
     AttitudeSample,
@@ -60,7 +61,7 @@ from glmav_observer.ingest.samples import (
     TruthSample,
     VelocitySample,
 )
-from glmav_observer.records import CONFIGS, LOST_AXIS_OF_CONFIG, NED_AXES, VelocityRecord
+from glmav_observer.records import CONFIGS, NED_AXES, VelocityRecord
 
 FloatArray = NDArray[np.float64]
 

@@ -41,8 +41,9 @@ from numpy.typing import NDArray
 
 from benchmarks.common import format_goals, format_table, goal, main_for, time_per_call_s
 from glmav_observer.estimation.aero import AidedAxis, DragModel
-from glmav_observer.estimation.observer import G_MPS2, e_exact, gamma_body_mps2
+from glmav_observer.estimation.observer import G_MPS2, gamma_body_mps2
 from glmav_observer.evaluation import read_log_bytes
+from glmav_observer.frames import e_exact
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
 from glmav_observer.ingest.samples import (

@@ -16,7 +16,8 @@ import numpy as np
 from benchmarks.common import format_goals, format_table, goal, main_for, time_per_call_s
 from glmav_observer.commands.check import exact_kinematics_scenario
 from glmav_observer.estimation.bank import BatchedBank, ObserverBank
-from glmav_observer.estimation.observer import e_exact, gamma_body_mps2, zoh_step
+from glmav_observer.estimation.observer import gamma_body_mps2, zoh_step
+from glmav_observer.frames import e_exact
 
 N_VEHICLES = 100
 N_SAMPLES = 1000

@@ -45,13 +45,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
 from glmav_observer.estimation.fdi import FdiConfig
-from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact, gravity_body_mps2
+from glmav_observer.estimation.observer import G_MPS2, EForm, gravity_body_mps2
 from glmav_observer.estimation.vehicle import EstimatorConfig, VehicleEstimator
+from glmav_observer.frames import e_exact
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
 from glmav_observer.ingest.samples import ImuSample, Sample
-from glmav_observer.records import LOST_AXIS_OF_CONFIG, NED_AXES, TruthRecord, VelocityRecord
+from glmav_observer.records import NED_AXES, TruthRecord, VelocityRecord
 
 FloatArray = NDArray[np.float64]
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, get_args
 
+from glmav_observer.configurations import DEFAULT_GAMMA
 from glmav_observer.estimation import EForm
-from glmav_observer.estimation.bank import DEFAULT_GAMMA
 from glmav_observer.estimation.fdi import FdiConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig

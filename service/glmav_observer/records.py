@@ -15,11 +15,29 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-#: The configurations of the observer bank, in bank order (design.md, "Estimation").
-CONFIGS: tuple[str, ...] = ("full", "c1", "c2", "c3")
-#: The earth-frame (NED) axis each configuration does not measure.
-LOST_AXIS_OF_CONFIG: dict[str, str | None] = {"full": None, "c1": "d", "c2": "n", "c3": "e"}
-NED_AXES: tuple[str, str, str] = ("n", "e", "d")
+# the vocabulary of the records, from the table of configurations (exported with them)
+from glmav_observer.configurations import CONFIGS, NED_AXES, AxisName
+
+__all__ = [
+    "CONFIGS",
+    "HEALTH_SCHEMA",
+    "MEASUREMENT_SCHEMA",
+    "NED_AXES",
+    "REFERENCE_SCHEMA",
+    "TRUTH_SCHEMA",
+    "VELOCITY_SCHEMA",
+    "AxisName",
+    "FaultEvent",
+    "HealthRecord",
+    "MeasurementRecord",
+    "Record",
+    "ReferenceFitSummary",
+    "ReferenceRecord",
+    "TruthRecord",
+    "Vec3",
+    "VelocityRecord",
+    "flatten",
+]
 
 VELOCITY_SCHEMA = "glmav.velocity/1"
 HEALTH_SCHEMA = "glmav.health/1"
@@ -27,7 +45,6 @@ TRUTH_SCHEMA = "glmav.truth/1"
 MEASUREMENT_SCHEMA = "glmav.measurement/1"
 REFERENCE_SCHEMA = "glmav.reference/1"
 
-AxisName = Literal["n", "e", "d"]
 Vec3 = tuple[float, float, float]
 
 
@@ -85,7 +102,8 @@ class FaultEvent:
     when the autopilot says its velocity is not aided) name the NED axis isolated. An
     accelerometer fault (``accel_bias``) isolates no axis: ``axis`` is ``"body"``,
     ``t_onset_s`` the estimated change time and ``bias_body_mps2`` the estimated change of
-    the body-frame (FRD) accelerometer bias.
+    the body-frame (FRD) accelerometer bias. A velocity-sensor fault leaves both None: it is
+    isolated after a run of failed tests, and no onset time is estimated for it.
     """
 
     axis: AxisName | Literal["body"]

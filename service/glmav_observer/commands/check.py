@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from glmav_observer.estimation.bank import DEFAULT_GAMMA, ObserverBank
-from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact, gravity_body_mps2
-from glmav_observer.records import CONFIGS
+from glmav_observer.configurations import CONFIGS, DEFAULT_GAMMA, LOST_INDEX_OF_CONFIG
+from glmav_observer.estimation.bank import ObserverBank
+from glmav_observer.estimation.observer import G_MPS2, EForm, gravity_body_mps2
+from glmav_observer.frames import e_exact
 
 FloatArray = NDArray[np.float64]
 
@@ -106,8 +107,6 @@ _FIT_LOW = 3e-3
 #: Update rate of the small-angle rows (the IMU rate of design.md).
 SMALL_ANGLE_RATE_HZ = 250.0
 
-LOST_INDEX = {"full": None, "c1": 2, "c2": 0, "c3": 1}
-
 
 def run_check(
     duration_s: float = 10.0,
@@ -140,7 +139,7 @@ def run_check(
             err_ned[k + 1] = bank.x_hat_body_mps @ E_all[k + 1].T - sc.v_ned_mps[k + 1]
         k1 = min(round(f_hz), n)  # the sample at 1 s
         for i, config in enumerate(CONFIGS):
-            lost = LOST_INDEX[config]
+            lost = LOST_INDEX_OF_CONFIG[config]
             meas = [j for j in range(3) if j != lost]
             norm = np.linalg.norm(err_ned[:, i, meas], axis=1)
             rate, t1 = _decay(sc.t_s, norm)

@@ -1,11 +1,7 @@
 """Samples -> estimates: the paper's observer, the bank, fault isolation (numpy only, no I/O)."""
 
-from glmav_observer.estimation.bank import (
-    CONFIG_MASKS,
-    DEFAULT_GAMMA,
-    BatchedBank,
-    ObserverBank,
-)
+from glmav_observer.configurations import CONFIG_MASKS, DEFAULT_GAMMA, output_matrix
+from glmav_observer.estimation.bank import BatchedBank, ObserverBank
 from glmav_observer.estimation.observability import (
     observability_matrices,
     observability_rank,
@@ -16,18 +12,16 @@ from glmav_observer.estimation.observer import (
     EForm,
     NonFiniteInputError,
     ObserverGains,
-    ShapeError,
     a_matrix,
-    e_exact,
     e_matrix,
     e_small_angle,
     gamma_body_mps2,
     gravity_body_mps2,
     observer_gains,
     observer_rhs,
-    output_matrix,
     zoh_step,
 )
+from glmav_observer.frames import ShapeError, e_exact
 
 __all__ = [
     "CONFIG_MASKS",

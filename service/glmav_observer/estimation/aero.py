@@ -7,7 +7,7 @@ axes (FRD), per horizontal body axis j ∈ {x, y}:
 
 with ``f`` the specific force (m/s², what the accelerometer reads), ``u`` the body-frame
 airspeed and ``s`` the body-frame ground speed (m/s), ``E`` the body→NED rotation (13)
-(:func:`~.observer.e_exact`), ``k_j`` (1/s) the linear and ``q_j`` (1/m) the quadratic drag
+(:func:`glmav_observer.frames.e_exact`), ``k_j`` (1/s) the linear and ``q_j`` (1/m) the quadratic drag
 coefficient, ``c_j`` (m/s²) a constant (accelerometer bias, trim force), ``w`` the wind.
 With ``r_j`` the j-th row of Eᵀ (= the j-th column of E, a vector over n, e, d) this is
 linear in θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j):

@@ -2,9 +2,11 @@
 
 :class:`ObserverBank` holds one vehicle's state and advances all configurations with the
 exact zero-order-hold update of (16) (:func:`~glmav_observer.estimation.observer.zoh_step`).
-For the exact E it runs a plain-float twin of the closed form (numpy call overhead dominates
-for 4×3 arrays); tests check it against the numpy form to 1e-12. :class:`BatchedBank` does the
-same for ``n`` vehicles with numpy, vectorised over vehicles and configurations.
+For the exact E it runs a plain-float twin of the closed form (:func:`_step_closed_form`;
+numpy call overhead dominates for 4×3 arrays); tests check it against the numpy form to
+1e-12. :class:`BatchedBank` does the same for ``n`` vehicles with numpy, vectorised over
+vehicles and configurations. The configurations (names, masks, default γ) come from
+:mod:`glmav_observer.configurations`, E from :mod:`glmav_observer.frames`.
 
 Frames and units: ``euler_rad`` ZYX (φ, θ, ψ), ``omega_body_radps`` FRD, ``f_body_mps2`` the
 accelerometer's specific force in FRD (reads (0, 0, −g) at rest and level),
@@ -14,49 +16,37 @@ accelerometer's specific force in FRD (reads (0, 0, −g) at rest and level),
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from glmav_observer.configurations import (
+    CONFIG_MASKS,
+    CONFIGS,
+    CONFIGURATIONS,
+    DEFAULT_GAMMA,
+    config_index,
+)
 from glmav_observer.estimation.observer import (
     G_MPS2,
     BoolArray,
     EForm,
     FloatArray,
     NonFiniteInputError,
-    ShapeError,
     e_matrix,
     gamma_body_mps2,
     phi1_phi2_scalar,
     phi_terms,
-    rotate,
-    rotate_t,
     zoh_earth,
     zoh_step,
 )
-from glmav_observer.records import CONFIGS
+from glmav_observer.frames import ShapeError, e_flat, rotate, rotate_flat, rotate_t
 
-#: Which NED axes (n, e, d) each configuration measures, in CONFIGS order (full, c1, c2, c3).
-CONFIG_MASKS: BoolArray = np.array(
-    [
-        [True, True, True],  # full: C = I
-        [True, True, False],  # c1: C1 = [[1,0,0],[0,1,0]], down lost
-        [False, True, True],  # c2: C2 = [[0,1,0],[0,0,1]], north lost
-        [True, False, True],  # c3: C3 = [[1,0,0],[0,0,1]], east lost
-    ],
-    dtype=bool,
-)
-CONFIG_MASKS.setflags(write=False)
-
-#: γ (1/s) per configuration. c1..c3: the paper's (49). full: the minimiser of the steady
-#: error² (b/γ)² + γ σ_y²/(2 f) with accelerometer bias b = 0.2 m/s², velocity noise
-#: σ_y = 0.05 m/s at f = 30 Hz (design.md): γ³ = 4 f b²/σ_y² → γ ≈ 12.4 (docs/observer.md).
-DEFAULT_GAMMA: dict[str, float] = {"full": 12.0, "c1": 90.0, "c2": 70.0, "c3": 70.0}
-
-_MASK_TUPLES = tuple(tuple(bool(b) for b in row) for row in CONFIG_MASKS)
 #: The masks of a step where every measured axis is valid and allowed (identity-checked).
-_STANDARD_MASKS: list[tuple[bool, bool, bool]] = list(_MASK_TUPLES)  # type: ignore[arg-type]
+_STANDARD_MASKS: list[tuple[bool, bool, bool]] = [
+    (bool(r[0]), bool(r[1]), bool(r[2])) for r in CONFIG_MASKS.tolist()
+]
 
 
 def _gammas(gamma_per_config: Mapping[str, float] | None) -> tuple[float, ...]:
@@ -72,13 +62,6 @@ def _gammas(gamma_per_config: Mapping[str, float] | None) -> tuple[float, ...]:
     return tuple(merged[c] for c in CONFIGS)
 
 
-def _config_index(config: str) -> int:
-    try:
-        return CONFIGS.index(config)
-    except ValueError:
-        raise ValueError(f"unknown configuration {config!r}; expected one of {CONFIGS}") from None
-
-
 def _vec3(name: str, value: ArrayLike) -> list[float]:
     if type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64:
         fast: list[float] = value.tolist()  # the common case, ~0.1 µs
@@ -90,121 +73,65 @@ def _vec3(name: str, value: ArrayLike) -> list[float]:
     return out
 
 
-def _e_exact_list(phi: float, th: float, psi: float) -> list[float]:
-    """(13) as a flat row-major list of plain floats."""
-    sf, cf = math.sin(phi), math.cos(phi)
-    st, ct = math.sin(th), math.cos(th)
-    sp, cp = math.sin(psi), math.cos(psi)
-    return [
-        ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp,
-        ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp,
-        -st, sf * ct, cf * ct,
-    ]  # fmt: skip
+def _lost_index(m: tuple[bool, bool, bool]) -> int:
+    """The one unmeasured axis of a mask with two or three measured axes; −1 for none."""
+    return -1 if m[0] and m[1] and m[2] else (0 if not m[0] else (1 if not m[1] else 2))
 
 
-def _update_one(  # noqa: PLR0917 -- the inputs of one step, in the API order
-    x: list[float],
-    E: list[float],
-    we: list[float],
-    a: list[float],
-    y: list[float],
-    m: tuple[bool, bool, bool],
-    e: float,
-    hp1: float,
-    h2p2: float,
-    g: float,
-    h: float,
-) -> list[float]:
-    """One configuration, exact E, two or three measured axes: the closed form of
-    ``observer._zoh_exact_e`` in plain floats. ``e = exp(−γh)``, ``hp1 = h φ1(−γh)``,
-    ``h2p2 = h² φ2(−γh)``."""
-    x0, x1, x2 = x
-    z = [
-        E[0] * x0 + E[1] * x1 + E[2] * x2,
-        E[3] * x0 + E[4] * x1 + E[5] * x2,
-        E[6] * x0 + E[7] * x1 + E[8] * x2,
-    ]  # z = E x̂
-    if m[0] and m[1] and m[2]:  # C = I: ż = a − ω_e × y + γ (y − z)
-        y0, y1, y2 = y
-        w0, w1, w2 = we
-        z = [
-            e * z[0] + hp1 * (a[0] - (w1 * y2 - w2 * y1) + g * y0),
-            e * z[1] + hp1 * (a[1] - (w2 * y0 - w0 * y2) + g * y1),
-            e * z[2] + hp1 * (a[2] - (w0 * y1 - w1 * y0) + g * y2),
-        ]
-    else:  # lost axis l, measured m1 = l+1, m2 = l+2 (cyclic)
-        l_ = 0 if not m[0] else (1 if not m[1] else 2)
-        m1 = (l_ + 1) % 3
-        m2 = (l_ + 2) % 3
-        wl, wm1, wm2 = we[l_], we[m1], we[m2]
-        ym1, ym2 = y[m1], y[m2]
-        zl0 = z[l_]
-        cl = a[l_] - (wm1 * ym2 - wm2 * ym1)  # ż_l = (a − ω_e × Ȳ)_l
-        z[l_] = zl0 + h * cl
-        z[m1] = e * z[m1] + hp1 * (a[m1] + wl * ym2 + g * ym1 - wm2 * zl0) - h2p2 * wm2 * cl
-        z[m2] = e * z[m2] + hp1 * (a[m2] - wl * ym1 + g * ym2 + wm1 * zl0) + h2p2 * wm1 * cl
-    z0, z1, z2 = z
-    return [
-        E[0] * z0 + E[3] * z1 + E[6] * z2,
-        E[1] * z0 + E[4] * z1 + E[7] * z2,
-        E[2] * z0 + E[5] * z1 + E[8] * z2,
-    ]  # x̂ = Eᵀ z
+#: The lost axis of each configuration in bank order (−1: none), from the table.
+_STANDARD_LOST: tuple[int, ...] = tuple(
+    -1 if c.lost_index is None else c.lost_index for c in CONFIGURATIONS
+)
 
 
-def _step_standard(  # noqa: PLR0917 -- the inputs of one step, in the API order
+def _step_closed_form(  # noqa: PLR0917 -- the inputs of one step, in the API order
     xs: list[list[float]],
     E: list[float],
     we: list[float],
     a: list[float],
     y: list[float],
+    lost: Sequence[int],
     terms: list[tuple[float, float, float]],
     gammas: tuple[float, ...],
     h: float,
 ) -> list[list[float]]:
-    """The four standard configurations (all of y valid and allowed), unrolled.
+    """Every configuration, exact E, two or three measured axes each: the closed form of
+    :func:`~glmav_observer.estimation.observer.zoh_earth` in plain floats (its fast path,
+    pinned to it by tests/unit/glmav_observer/estimation/test_bank.py to 1e-12; one loop
+    body in local variables: ``python -m benchmarks.bench_observer`` measures why).
 
-    The same closed form as :func:`_update_one` with the lost axes fixed: full none, c1 the
-    down axis, c2 north, c3 east. ``terms[i] = (e^{−γh}, h φ1(−γh), h² φ2(−γh))``.
+    ``E`` flat row-major (:func:`~glmav_observer.frames.e_flat`), ``we = ω_e = E ω``,
+    ``a = E Γ``, ``y`` the measurement (only measured axes are read; they are finite),
+    ``lost[i]`` configuration i's unmeasured axis (−1: none), ``terms[i] = (e^{−γh},
+    h φ1(−γh), h² φ2(−γh))``.
     """
     e00, e01, e02, e10, e11, e12, e20, e21, e22 = E
-    w0, w1, w2 = we
-    a0, a1, a2 = a
-    y0, y1, y2 = y
     out: list[list[float]] = []
-    for i in range(4):
-        u0, u1, u2 = xs[i]
-        z0 = e00 * u0 + e01 * u1 + e02 * u2  # z = E x̂
-        z1 = e10 * u0 + e11 * u1 + e12 * u2
-        z2 = e20 * u0 + e21 * u1 + e22 * u2
-        e, p1, p2 = terms[i]
-        g = gammas[i]
-        if i == 0:  # full: ż = a − ω_e × y + γ (y − z)
-            z0, z1, z2 = (
-                e * z0 + p1 * (a0 - (w1 * y2 - w2 * y1) + g * y0),
-                e * z1 + p1 * (a1 - (w2 * y0 - w0 * y2) + g * y1),
-                e * z2 + p1 * (a2 - (w0 * y1 - w1 * y0) + g * y2),
-            )
-        elif i == 1:  # c1: down (2) lost, ż_2 = a_2 − (ω_e × Ȳ)_2
-            c = a2 - (w0 * y1 - w1 * y0)
-            z0, z1, z2 = (
-                e * z0 + p1 * (a0 + w2 * y1 + g * y0 - w1 * z2) - p2 * w1 * c,
-                e * z1 + p1 * (a1 - w2 * y0 + g * y1 + w0 * z2) + p2 * w0 * c,
-                z2 + h * c,
-            )
-        elif i == 2:  # c2: north (0) lost
-            c = a0 - (w1 * y2 - w2 * y1)
-            z0, z1, z2 = (
-                z0 + h * c,
-                e * z1 + p1 * (a1 + w0 * y2 + g * y1 - w2 * z0) - p2 * w2 * c,
-                e * z2 + p1 * (a2 - w0 * y1 + g * y2 + w1 * z0) + p2 * w1 * c,
-            )
-        else:  # c3: east (1) lost
-            c = a1 - (w2 * y0 - w0 * y2)
-            z0, z1, z2 = (
-                e * z0 + p1 * (a0 - w1 * y2 + g * y0 + w2 * z1) + p2 * w2 * c,
-                z1 + h * c,
-                e * z2 + p1 * (a2 + w1 * y0 + g * y2 - w0 * z1) - p2 * w0 * c,
-            )
+    for (u0, u1, u2), l_, (e, hp1, h2p2), g in zip(xs, lost, terms, gammas, strict=True):
+        z = [
+            e00 * u0 + e01 * u1 + e02 * u2,
+            e10 * u0 + e11 * u1 + e12 * u2,
+            e20 * u0 + e21 * u1 + e22 * u2,
+        ]  # z = E x̂
+        if l_ < 0:  # C = I: ż = a − ω_e × y + γ (y − z)
+            y0, y1, y2 = y
+            w0, w1, w2 = we
+            z = [
+                e * z[0] + hp1 * (a[0] - (w1 * y2 - w2 * y1) + g * y0),
+                e * z[1] + hp1 * (a[1] - (w2 * y0 - w0 * y2) + g * y1),
+                e * z[2] + hp1 * (a[2] - (w0 * y1 - w1 * y0) + g * y2),
+            ]
+        else:  # lost axis l, measured m1 = l+1, m2 = l+2 (cyclic); ż_l = (a − ω_e × Ȳ)_l
+            m1 = (l_ + 1) % 3
+            m2 = (l_ + 2) % 3
+            wl, wm1, wm2 = we[l_], we[m1], we[m2]
+            ym1, ym2 = y[m1], y[m2]
+            zl0 = z[l_]
+            cl = a[l_] - (wm1 * ym2 - wm2 * ym1)
+            z[l_] = zl0 + h * cl
+            z[m1] = e * z[m1] + hp1 * (a[m1] + wl * ym2 + g * ym1 - wm2 * zl0) - h2p2 * wm2 * cl
+            z[m2] = e * z[m2] + hp1 * (a[m2] - wl * ym1 + g * ym2 + wm1 * zl0) + h2p2 * wm1 * cl
+        z0, z1, z2 = z
         out.append(
             [
                 e00 * z0 + e10 * z1 + e20 * z2,  # x̂ = Eᵀ z
@@ -256,7 +183,7 @@ class ObserverBank:
         if not (math.isfinite(gamma) and gamma > 0.0):
             raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
         g = list(self.gamma_gain)
-        g[_config_index(config)] = float(gamma)
+        g[config_index(config)] = float(gamma)
         self.gamma_gain = tuple(g)
         self._gamma_arr = np.array(self.gamma_gain)
         self._h_cached = math.nan  # the φ-terms depend on γ
@@ -273,7 +200,7 @@ class ObserverBank:
 
     def set_state_body(self, config: str, v_body_mps: ArrayLike) -> None:
         """Overwrite one configuration's body-frame state (m/s)."""
-        i = _config_index(config)
+        i = config_index(config)
         v = _vec3("v_body_mps", v_body_mps)
         if not all(math.isfinite(c) for c in v):
             raise NonFiniteInputError(f"v_body_mps: NaN or infinite value in {v!r}")
@@ -284,7 +211,7 @@ class ObserverBank:
 
         x̂ = E⁻¹ v_ned (= Eᵀ v_ned for the exact E) with this bank's E form.
         """
-        i = _config_index(config)
+        i = config_index(config)
         v = np.asarray(_vec3("v_ned_mps", v_ned_mps))
         eul = np.asarray(_vec3("euler_rad", euler_rad))
         if not (np.isfinite(v).all() and np.isfinite(eul).all()):
@@ -366,20 +293,11 @@ class ObserverBank:
         y: list[float],
         masks: list[tuple[bool, bool, bool]],
     ) -> None:
-        E = _e_exact_list(*eul)
-        w0, w1, w2 = w
-        f0, f1, f2 = f
-        we = [
-            E[0] * w0 + E[1] * w1 + E[2] * w2,
-            E[3] * w0 + E[4] * w1 + E[5] * w2,
-            E[6] * w0 + E[7] * w1 + E[8] * w2,
-        ]  # ω_e = E ω
+        E = e_flat(*eul)
+        we = rotate_flat(E, w)  # ω_e = E ω
         # a = E Γ = E (f + Eᵀ g e_z) = E f + (0, 0, g): gravity in body axes (9) is Eᵀ (0, 0, g)
-        a = [
-            E[0] * f0 + E[1] * f1 + E[2] * f2,
-            E[3] * f0 + E[4] * f1 + E[5] * f2,
-            E[6] * f0 + E[7] * f1 + E[8] * f2 + self.g_mps2,
-        ]
+        a = rotate_flat(E, f)
+        a[2] += self.g_mps2
         if h != self._h_cached:  # φ-terms depend only on (γ, h): reuse them at a fixed rate
             self._terms = []
             for g in self.gamma_gain:
@@ -387,17 +305,8 @@ class ObserverBank:
                 p1, p2 = phi1_phi2_scalar(xg)
                 self._terms.append((math.exp(xg), h * p1, h * h * p2))
             self._h_cached = h
-        if masks is _STANDARD_MASKS:
-            new = _step_standard(self._x, E, we, a, y, self._terms, self.gamma_gain, h)
-        else:
-            yb = [c if math.isfinite(c) else 0.0 for c in y]
-            new = []
-            for x, m, g, (e, hp1, h2p2) in zip(
-                self._x, masks, self.gamma_gain, self._terms, strict=True
-            ):
-                ym = [yb[0] if m[0] else 0.0, yb[1] if m[1] else 0.0, yb[2] if m[2] else 0.0]
-                new.append(_update_one(x, E, we, a, ym, m, e, hp1, h2p2, g, h))
-        self._x = new
+        lost = _STANDARD_LOST if masks is _STANDARD_MASKS else [_lost_index(m) for m in masks]
+        self._x = _step_closed_form(self._x, E, we, a, y, lost, self._terms, self.gamma_gain, h)
         self._E_last = E
 
     def _step_numpy(  # noqa: PLR0917 -- the inputs of one step, in the API order
@@ -421,7 +330,15 @@ class ObserverBank:
 
 class BatchedBank:
     """``n`` vehicles × the four configurations, numpy-vectorised; same semantics as
-    :class:`ObserverBank` with a leading vehicle dimension."""
+    :class:`ObserverBank` with a leading vehicle dimension.
+
+    The service does not use it yet: each vehicle's estimator steps its own
+    :class:`ObserverBank` when that vehicle's samples arrive. It stays as the fleet-scale
+    path: with many vehicles stepped together it is the cheaper form per configuration
+    update (``python -m benchmarks.bench_observer``: 0.48 µs at 100 vehicles against 1.6 µs
+    in :class:`ObserverBank`, docs/benchmarks/bench_observer.md), and
+    tests/unit/glmav_observer/estimation/test_bank.py keeps it equal to a loop of banks.
+    """
 
     def __init__(
         self,

@@ -176,6 +176,19 @@ class FdiConfig:
     change_window_s: float = 1.5
 
 
+def sigma_dead_reckoning_mps(cfg: FdiConfig, age_s: float) -> float:
+    """1σ of a dead-reckoned velocity ``age_s`` after its last anchor (a vetted sample, a
+    hand-over): √(σ0² + (σ_b t)² + q t), σ0 = ``sigma_handover_mps``, σ_b =
+    ``sigma_bias_mps2`` (an accelerometer bias left over), q = ``accel_noise_density``²
+    (the IMU's white noise integrated); a negative age counts as 0."""
+    age = max(0.0, age_s)
+    return math.sqrt(
+        cfg.sigma_handover_mps**2
+        + (cfg.sigma_bias_mps2 * age) ** 2
+        + cfg.accel_noise_density**2 * age
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class AxisVerdict:
     """What the FDI says about one axis after one measurement."""
@@ -590,13 +603,8 @@ class AxisMonitor:
 
     def sigma_dead_reckoning_mps(self, t_s: float) -> float:
         """1σ of the prediction's drift, growing with the age of the newest vetted sample."""
-        age = 0.0 if self._t_last_vetted_s is None else max(0.0, t_s - self._t_last_vetted_s)
-        c = self.cfg
-        return math.sqrt(
-            c.sigma_handover_mps**2
-            + (c.sigma_bias_mps2 * age) ** 2
-            + c.accel_noise_density**2 * age
-        )
+        age = 0.0 if self._t_last_vetted_s is None else t_s - self._t_last_vetted_s
+        return sigma_dead_reckoning_mps(self.cfg, age)
 
     def vet(self, t_s: float) -> None:
         """Move pending samples older than the vetting delay into the shared fit."""

@@ -18,18 +18,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from glmav_observer.estimation.observer import (
-    FloatArray,
-    ShapeError,
-    a_matrix,
-    e_exact,
-    expm,
-    output_matrix,
-)
+from glmav_observer.configurations import LOST_INDEX_OF_CONFIG, output_matrix
+from glmav_observer.estimation.observer import FloatArray, a_matrix, expm
+from glmav_observer.frames import ShapeError, e_exact
 
 ObservabilityForm = Literal["true", "paper", "interval"]
-
-_LOST_INDEX = {"c1": 2, "c2": 0, "c3": 1}
 
 
 def _histories(
@@ -115,13 +108,14 @@ def unobserved_direction_body(
     point along +Eᵀ e_l (the lost NED axis l expressed in body axes, which it equals for
     consistent kinematics). ``full`` observes everything: ``ValueError``.
     """
-    if config not in _LOST_INDEX:
+    lost = LOST_INDEX_OF_CONFIG.get(config)
+    if lost is None:
         raise ValueError(f"config {config!r} has no unobserved direction (use c1, c2 or c3)")
     obs = observability_matrices(config, euler_history_rad, omega_history_radps, dt_s, "true")
     _, _, vt = np.linalg.svd(obs)
     null = vt[:, -1, :]  # (T, 3)
     E = e_exact(np.asarray(euler_history_rad, dtype=np.float64))
-    ref = E[:, _LOST_INDEX[config], :]  # Eᵀ e_l = row l of E
+    ref = E[:, lost, :]  # Eᵀ e_l = row l of E
     sign = np.where((null * ref).sum(axis=1) < 0, -1.0, 1.0)
     out: FloatArray = null * sign[:, None]
     return out

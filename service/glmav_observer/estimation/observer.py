@@ -6,13 +6,15 @@ Aerial Vehicle*, IFAC 2011. Equation numbers refer to ``shared/paper/equations.m
 Conventions (everywhere in this module):
 
 - earth frame NED, body frame FRD, Euler angles ZYX ``euler_rad = (roll φ, pitch θ, yaw ψ)``;
-- ``E`` maps body vectors to earth vectors (13): ``v_ned = E @ v_body``;
+- ``E`` maps body vectors to earth vectors (13): ``v_ned = E @ v_body``
+  (:mod:`glmav_observer.frames` computes it);
 - the state is the body-frame velocity ``x_hat_body_mps`` (u, v, w) in m/s;
 - ``omega_body_radps`` = (p, q, r) body rates in rad/s, ``A = -[ω]×`` (11);
 - ``Gamma_body_mps2`` = Γ = F/m, the total force per unit mass *including weight* (12), i.e.
   the accelerometer's specific force plus gravity in body axes (:func:`gamma_body_mps2`);
 - a measurement mask ``meas_mask`` (…, 3) bool selects the NED axes measured now; the
-  paper's C_i are the rows of the identity it selects, ``D = CᵀC = diag(mask)``.
+  paper's C_i are the rows of the identity it selects, ``D = CᵀC = diag(mask)``
+  (:mod:`glmav_observer.configurations` holds each configuration's mask and C).
 
 Every function broadcasts over leading batch dimensions ``...``.
 
@@ -27,6 +29,9 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from glmav_observer.frames import ShapeError, e_exact, rotate, rotate_t
+from glmav_observer.frames import as_vectors as _array
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -45,10 +50,6 @@ class NonFiniteInputError(ValueError):
     """A NaN or infinite value where a finite input is required."""
 
 
-class ShapeError(ValueError):
-    """An input whose shape does not fit (wrong trailing dimensions or batch shape)."""
-
-
 class ObserverGains(NamedTuple):
     """The matrices of (17), (18), (23), (27)-(29) at one instant.
 
@@ -65,46 +66,12 @@ class ObserverGains(NamedTuple):
 # --------------------------------------------------------------------------- validation
 
 
-def _array(name: str, value: ArrayLike, trailing: tuple[int, ...]) -> FloatArray:
-    """``value`` as float64 with the given trailing shape, else :class:`ShapeError`."""
-    arr = np.asarray(value, dtype=np.float64)
-    n = len(trailing)
-    if arr.ndim < n or arr.shape[arr.ndim - n :] != trailing:
-        raise ShapeError(
-            f"{name}: expected shape (..., {', '.join(map(str, trailing))}), got {arr.shape}"
-        )
-    return arr
-
-
 def _require_finite(name: str, arr: FloatArray) -> None:
     if not np.isfinite(arr).all():
         raise NonFiniteInputError(f"{name}: NaN or infinite value in {np.asarray(arr).tolist()!r}")
 
 
 # --------------------------------------------------------------------------- kinematics
-
-
-def e_exact(euler_rad: ArrayLike) -> FloatArray:
-    """Body(FRD)-to-earth(NED) rotation matrix (13), ZYX Euler angles, shape (..., 3, 3)."""
-    eul = _array("euler_rad", euler_rad, (3,))
-    s = np.sin(eul)
-    c = np.cos(eul)
-    sphi, sth, spsi = s[..., 0], s[..., 1], s[..., 2]
-    cphi, cth, cpsi = c[..., 0], c[..., 1], c[..., 2]
-    sth_cpsi = sth * cpsi
-    sth_spsi = sth * spsi
-    E = np.empty((*eul.shape[:-1], 3, 3))
-    # (13), row by row
-    E[..., 0, 0] = cth * cpsi
-    E[..., 0, 1] = sphi * sth_cpsi - cphi * spsi
-    E[..., 0, 2] = cphi * sth_cpsi + sphi * spsi
-    E[..., 1, 0] = cth * spsi
-    E[..., 1, 1] = sphi * sth_spsi + cphi * cpsi
-    E[..., 1, 2] = cphi * sth_spsi - sphi * cpsi
-    E[..., 2, 0] = -sth
-    E[..., 2, 1] = sphi * cth
-    E[..., 2, 2] = cphi * cth
-    return E
 
 
 def e_small_angle(euler_rad: ArrayLike) -> FloatArray:
@@ -161,14 +128,6 @@ def skew(v: ArrayLike) -> FloatArray:
 def a_matrix(omega_body_radps: ArrayLike) -> FloatArray:
     """A = −[ω]× (11): [[0, r, −q], [−r, 0, p], [q, −p, 0]], shape (..., 3, 3)."""
     return -skew(omega_body_radps)
-
-
-def output_matrix(config: str) -> FloatArray:
-    """C of the configuration: identity (3, 3) for ``full``; C1, C2, C3 (2, 3) for c1..c3."""
-    rows = {"full": (0, 1, 2), "c1": (0, 1), "c2": (1, 2), "c3": (0, 2)}
-    if config not in rows:
-        raise ValueError(f"unknown configuration {config!r}; expected one of {sorted(rows)}")
-    return np.eye(3)[list(rows[config])]
 
 
 # --------------------------------------------------------------------------- the observer
@@ -346,17 +305,6 @@ def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
-
-
-def rotate(M: FloatArray, v: FloatArray) -> FloatArray:
-    """M v for 3×3 M (..., 3, 3) and v (..., 3), broadcast; three fused terms (faster than
-    np.matmul's per-matrix loop for many tiny matrices)."""
-    return v[..., 0:1] * M[..., :, 0] + v[..., 1:2] * M[..., :, 1] + v[..., 2:3] * M[..., :, 2]
-
-
-def rotate_t(M: FloatArray, v: FloatArray) -> FloatArray:
-    """Mᵀ v for 3×3 M (..., 3, 3) and v (..., 3), broadcast."""
-    return v[..., 0:1] * M[..., 0, :] + v[..., 1:2] * M[..., 1, :] + v[..., 2:3] * M[..., 2, :]
 
 
 def zoh_step(  # noqa: PLR0917 -- positional API mirrors the paper's symbols

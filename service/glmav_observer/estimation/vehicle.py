@@ -53,6 +53,13 @@ from typing import Any
 
 import numpy as np
 
+from glmav_observer.configurations import (
+    CONFIG_WITHOUT_AXIS,
+    CONFIGS,
+    LOST_AXIS_OF_CONFIG,
+    LOST_INDEX_OF_CONFIG,
+    config_index,
+)
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
 from glmav_observer.estimation.fdi import (
@@ -62,9 +69,11 @@ from glmav_observer.estimation.fdi import (
     FdiConfig,
     Integrals,
     Reference,
+    sigma_dead_reckoning_mps,
 )
-from glmav_observer.estimation.observer import G_MPS2, EForm, e_exact, gamma_full_optimal
+from glmav_observer.estimation.observer import G_MPS2, EForm, gamma_full_optimal
 from glmav_observer.estimation.streams import StreamTiming
+from glmav_observer.frames import e_exact, rotate_flat, rotate_t_flat
 from glmav_observer.ingest.samples import (
     AidingSample,
     AttitudeSample,
@@ -74,8 +83,6 @@ from glmav_observer.ingest.samples import (
     VelocitySample,
 )
 from glmav_observer.records import (
-    CONFIGS,
-    LOST_AXIS_OF_CONFIG,
     NED_AXES,
     FaultEvent,
     HealthRecord,
@@ -94,9 +101,6 @@ ACCEL_EVENT_HOLD_S = 5.0
 RECOVERY_BLEND_S = 1.0
 #: Measurements between two updates of the gain of ``full`` (~5 s at 25 Hz).
 GAMMA_UPDATE_SAMPLES = 125
-#: The configuration that does not use each NED axis (index 0 n, 1 e, 2 d).
-CONFIG_WITHOUT_AXIS: tuple[str, str, str] = ("c2", "c3", "c1")
-_CONFIG_INDEX = {c: i for i, c in enumerate(CONFIGS)}
 
 Vec3 = tuple[float, float, float]
 
@@ -149,22 +153,6 @@ def merge_counters(*parts: Mapping[str, int]) -> dict[str, int]:
         for k, n in part.items():
             out[k] = out.get(k, 0) + n
     return dict(sorted(out.items()))
-
-
-def _e_times(E: list[float], v: Vec3 | list[float]) -> list[float]:
-    return [
-        E[0] * v[0] + E[1] * v[1] + E[2] * v[2],
-        E[3] * v[0] + E[4] * v[1] + E[5] * v[2],
-        E[6] * v[0] + E[7] * v[1] + E[8] * v[2],
-    ]
-
-
-def _et_times(E: list[float], v: list[float]) -> list[float]:
-    return [
-        E[0] * v[0] + E[3] * v[1] + E[6] * v[2],
-        E[1] * v[0] + E[4] * v[1] + E[7] * v[2],
-        E[2] * v[0] + E[5] * v[1] + E[8] * v[2],
-    ]
 
 
 class VehicleEstimator:
@@ -312,7 +300,7 @@ class VehicleEstimator:
         self.bank.step(dt, self._euler, self._omega(), f_bank, y, mask)
         E = self.bank.e_last.ravel().tolist()
         self._E = E
-        a = _e_times(E, f)  # earth-frame acceleration E Γ = E f + g e_d (V̇ = E Γ)
+        a = rotate_flat(E, f)  # earth-frame acceleration E Γ = E f + g e_d (V̇ = E Γ)
         a[2] += cfg.g_mps2
         ai = self._a_int
         for i in range(3):
@@ -533,7 +521,7 @@ class VehicleEstimator:
                 self._gamma_saved = self.bank.gamma_gain[0]
             self.bank.set_gamma("full", min(self._gamma_saved, self.cfg.gamma_full_min))
             self._t_gamma_restore_s = t + RECOVERY_BLEND_S
-        self._t_seed_s[_CONFIG_INDEX[to]] = t
+        self._t_seed_s[config_index(to)] = t
         self.switches.append(
             SwitchEvent(t, self._active, to, reason, (before[0], before[1], before[2]))
         )
@@ -542,15 +530,6 @@ class VehicleEstimator:
         self._lost_axis_idx = lost_idx
 
     # ------------------------------------------------------------------ records
-    def _sigma_lost(self, t: float, t0: float) -> float:
-        c = self.cfg.fdi
-        age = max(0.0, t - t0)
-        return math.sqrt(
-            c.sigma_handover_mps**2
-            + (c.sigma_bias_mps2 * age) ** 2
-            + c.accel_noise_density**2 * age
-        )
-
     def _velocity_records(self, out: list[Record]) -> None:
         t = self.t_bank_s
         assert t is not None
@@ -570,14 +549,16 @@ class VehicleEstimator:
                     t,
                     (body[i][0], body[i][1], body[i][2]),
                     (ned_l[i][0], ned_l[i][1], ned_l[i][2]),
-                    lost,  # type: ignore[arg-type]
+                    lost,
                     health,
                     self._seqn(c),
                     None,
-                    None if lost is None else self._sigma_lost(t, self._t_seed_s[i]),
+                    None
+                    if lost is None
+                    else sigma_dead_reckoning_mps(self.cfg.fdi, t - self._t_seed_s[i]),
                 )
             )
-        a = _CONFIG_INDEX[self._active]
+        a = config_index(self._active)
         a_ned = self._active_ned(ned_l)
         lost_a = LOST_AXIS_OF_CONFIG[self._active]
         if n_faulty == 0:
@@ -593,11 +574,13 @@ class VehicleEstimator:
                 t,
                 (body[a][0], body[a][1], body[a][2]),
                 a_ned,
-                lost_a,  # type: ignore[arg-type]
+                lost_a,
                 health_a,
                 self._seqn("active"),
                 self._active,
-                None if lost_a is None else self._sigma_lost(t, self._t_handover_s),
+                None
+                if lost_a is None
+                else sigma_dead_reckoning_mps(self.cfg.fdi, t - self._t_handover_s),
             )
         )
         if self._pending_switch is not None:
@@ -614,11 +597,10 @@ class VehicleEstimator:
         """The active estimate if ``config`` (default: the active one) were active: its NED
         velocity, its dead-reckoned axis corrected by the fit (``compensate_accel_bias``)."""
         config = self._active if config is None else config
-        v = ned_l[_CONFIG_INDEX[config]]
-        lost = LOST_AXIS_OF_CONFIG[config]
-        if lost is None or not self.cfg.compensate_accel_bias:
+        v = ned_l[config_index(config)]
+        j = LOST_INDEX_OF_CONFIG[config]
+        if j is None or not self.cfg.compensate_accel_bias:
             return (v[0], v[1], v[2])
-        j = NED_AXES.index(lost)
         out = [v[0], v[1], v[2]]
         out[j] += self._lost_axis_correction(j)
         return (out[0], out[1], out[2])
@@ -698,8 +680,10 @@ class VehicleEstimator:
         )
 
     def _truth(self, s: TruthSample, out: list[Record]) -> None:
+        # the numpy E, as the truth records have always used (frames.e_flat differs by an
+        # ulp in 7 % of entries: the records would change in their last digit)
         E = e_exact(np.asarray(s.euler_rad)).ravel().tolist()
-        v_body = _et_times(E, list(s.v_ned_mps))
+        v_body = rotate_t_flat(E, s.v_ned_mps)
         out.append(
             TruthRecord(
                 self.sysid,

@@ -31,7 +31,7 @@ import numpy as np
 import psutil
 import pytest
 
-from glmav_observer.estimation.observer import e_exact
+from glmav_observer.frames import e_exact
 from glmav_observer.publish.rerun import (
     COLORS,
     TIMELINE,

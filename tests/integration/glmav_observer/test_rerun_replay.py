@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from glmav_observer.configurations import CONFIGS, LOST_AXIS_OF_CONFIG
 from glmav_observer.publish.rerun import (
     ISOLATED_AXIS_INDEX,
     TIMELINE,
     read_recording,
 )
-from glmav_observer.records import CONFIGS, LOST_AXIS_OF_CONFIG
 
 BIN = Path(sys.executable).parent
 # Times pass through int64 nanoseconds; JSON keeps floats exactly (shortest repr).

@@ -14,9 +14,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
 from glmav_observer.records import (
     CONFIGS,
-    LOST_AXIS_OF_CONFIG,
     FaultEvent,
     HealthRecord,
     MeasurementRecord,

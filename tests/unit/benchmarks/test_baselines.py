@@ -12,7 +12,8 @@ from benchmarks.baselines import (
     earth_accel_mps2,
 )
 
-from glmav_observer.estimation.observer import G_MPS2, e_exact
+from glmav_observer.estimation.observer import G_MPS2
+from glmav_observer.frames import e_exact
 
 
 def test_earth_accel_is_e_times_f_plus_gravity() -> None:

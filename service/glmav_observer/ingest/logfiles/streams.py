@@ -97,20 +97,6 @@ def sort_by_time(t: F64, *arrays: F64) -> tuple[F64, ...]:
     return (t[order], *(a[order] for a in arrays))
 
 
-def euler_from_quat(q_wxyz: F64) -> F64:
-    """ZYX Euler angles (roll, pitch, yaw) of body-to-NED unit quaternions, shape (N, 3).
-
-    PX4 logs attitude as a quaternion (w, x, y, z), rotating FRD body to NED; the
-    estimator takes Euler angles as MAVLink ``ATTITUDE`` does.
-    """
-    q = q_wxyz / np.linalg.norm(q_wxyz, axis=1, keepdims=True)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return np.stack([roll, pitch, yaw], axis=1)
-
-
 def interp_euler(t_query: F64, t_att: F64, euler: F64) -> F64:
     """Euler angles interpolated at ``t_query`` (yaw unwrapped, then wrapped to ±π)."""
     unwrapped = euler.copy()

@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from glmav_observer.frames import euler_from_quaternion_wxyz
 from glmav_observer.ingest.logfiles.streams import (
     LogError,
     LogStreams,
-    euler_from_quat,
     finite_rows,
     sort_by_time,
 )
@@ -76,7 +76,7 @@ def read_ulog(path: str | Path) -> LogStreams:
             t = np.asarray(att["timestamp"], dtype=np.float64) * 1e-6
             q = _cols(att, [f"q[{i}]" for i in range(4)])
             ok = finite_rows("attitude", s, t, q) & (np.linalg.norm(q, axis=1) > 0.5)
-            s.t_att_s, s.euler_rad = sort_by_time(t[ok], euler_from_quat(q[ok]))
+            s.t_att_s, s.euler_rad = sort_by_time(t[ok], euler_from_quaternion_wxyz(q[ok]))
             s.sources["attitude"] = "vehicle_attitude"
         imu = _topic(ulog, "sensor_combined")
         if imu is not None:

@@ -8,7 +8,6 @@ Importing the package does not import rerun; opening a sink does.
 """
 
 from glmav_observer.publish.rerun.blueprint import build_blueprint
-from glmav_observer.publish.rerun.buffer import quaternion_xyzw
 from glmav_observer.publish.rerun.mode import RerunMode, RerunModeError, parse_rerun_mode
 from glmav_observer.publish.rerun.paths import (
     AXIS_STATE_INDEX,
@@ -37,7 +36,6 @@ __all__ = [
     "config_label",
     "open_rerun_sink",
     "parse_rerun_mode",
-    "quaternion_xyzw",
     "read_recording",
     "rerun_executable",
 ]

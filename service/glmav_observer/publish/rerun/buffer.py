@@ -26,8 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from glmav_observer.estimation.observer import e_exact
+from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
 from glmav_observer.evaluation import interpolate_truth
+from glmav_observer.frames import e_flat, quaternion_xyzw, rotate_t_flat
 from glmav_observer.publish.rerun.paths import (
     AXIS_STATE_INDEX,
     BODY_AXES,
@@ -45,7 +46,6 @@ from glmav_observer.publish.rerun.paths import (
     world_vehicle_path,
 )
 from glmav_observer.records import (
-    LOST_AXIS_OF_CONFIG,
     NED_AXES,
     HealthRecord,
     MeasurementRecord,
@@ -125,20 +125,6 @@ class Batch:
 
 
 # --------------------------------------------------------------------------- pure math
-
-
-def quaternion_xyzw(euler_rad: Sequence[float]) -> tuple[float, float, float, float]:
-    """The unit quaternion (x, y, z, w) of the ZYX rotation E (13) (``estimation.observer.e_exact``)."""
-    phi, theta, psi = (0.5 * a for a in euler_rad)
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    return (
-        sf * ct * cp - cf * st * sp,
-        cf * st * cp + sf * ct * sp,
-        cf * ct * sp - sf * st * cp,
-        cf * ct * cp + sf * st * sp,
-    )
 
 
 # --------------------------------------------------------------------------- status
@@ -380,8 +366,8 @@ class RecordBuffer:
         euler = r.euler_rad
         if euler is not None and all(math.isfinite(a) for a in euler):
             # v_body = E^T y: the measured NED velocity in body axes with the held attitude (13)
-            v_body = e_exact(euler).T @ np.asarray(r.v_ned_mps, dtype=np.float64)
-            veh.groups["meas_body"].append(t, tuple(float(x) for x in v_body))
+            v_body = rotate_t_flat(e_flat(*euler), r.v_ned_mps)
+            veh.groups["meas_body"].append(t, (v_body[0], v_body[1], v_body[2]))
             if all(math.isfinite(x) for x in r.position_ned_m):
                 truth_v = veh.truth_v_body or (math.nan, math.nan, math.nan)
                 veh.pose_t.append(t)

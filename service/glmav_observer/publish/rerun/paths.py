@@ -1,7 +1,7 @@
 """Entity paths, the timeline, series names and colours of the Rerun recording.
 
 Paths follow the pipeline (``docs/rerun.md`` lists them with their instances). The
-configurations of the bank are the names the sink is given (``records.CONFIGS`` by
+configurations of the bank are the names the sink is given (``configurations.CONFIGS`` by
 default), in bank order: nothing here assumes how many there are.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from glmav_observer.records import LOST_AXIS_OF_CONFIG, NED_AXES
+from glmav_observer.configurations import LOST_AXIS_OF_CONFIG, NED_AXES
 
 #: The timeline every row is logged on: the vehicle's boot clock (a duration).
 TIMELINE = "vehicle_time"
@@ -48,7 +48,12 @@ WIDTH_TRUTH = 1.5
 WIDTH_ACTIVE = 4.0
 
 #: Encodings of the state series (a scalar per state so that the viewer plots steps).
-ISOLATED_AXIS_INDEX: dict[str | None, int] = {None: 0, "n": 1, "e": 2, "d": 3, "body": 4}
+#: The isolated fault: 0 none, then the NED axes (1 n, 2 e, 3 d), then the accelerometer.
+ISOLATED_AXIS_INDEX: dict[str | None, int] = {
+    None: 0,
+    **{a: i + 1 for i, a in enumerate(NED_AXES)},
+    "body": len(NED_AXES) + 1,
+}
 AXIS_STATE_INDEX: dict[str, int] = {
     "warmup": -1,
     "ok": 0,

@@ -21,7 +21,7 @@ from glmav_observer.estimation.aero import (
     DragModelConfig,
     PseudoMeasurement,
 )
-from glmav_observer.estimation.observer import e_exact
+from glmav_observer.frames import e_exact
 
 F = NDArray[np.float64]
 RATE_HZ = 25.0

@@ -18,6 +18,7 @@ from glmav_observer.estimation.fdi import (
     FdiConfig,
     ReferenceFit,
     classify_change,
+    sigma_dead_reckoning_mps,
 )
 from glmav_observer.records import FaultEvent
 
@@ -186,3 +187,12 @@ def test_a_noisy_measurement_is_not_withdrawn_on_a_chance_ramp() -> None:
     assert ax.ramping(RAMP_WINDOW_S)  # smooth (no second differences recorded yet)
     ax._d2y_sq.extend([1.5] * len(ax._ramp))
     assert not ax.ramping(RAMP_WINDOW_S)
+
+
+def test_dead_reckoning_sigma_grows_as_documented() -> None:
+    # σ(t) = √(σ0² + (σ_b t)² + q t) with the defaults σ0 = 0.03 m/s, σ_b = 0.03 m/s²,
+    # √q = 4e-3 m/s^1.5: at 10 s, √(9e-4 + 0.09 + 1.6e-4) = 0.30176 m/s
+    cfg = FdiConfig()
+    assert sigma_dead_reckoning_mps(cfg, 0.0) == pytest.approx(0.03, rel=1e-12)
+    assert sigma_dead_reckoning_mps(cfg, -1.0) == pytest.approx(0.03, rel=1e-12)  # clamped
+    assert sigma_dead_reckoning_mps(cfg, 10.0) == pytest.approx(math.sqrt(0.09106), rel=1e-12)

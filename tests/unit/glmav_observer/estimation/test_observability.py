@@ -11,7 +11,7 @@ from glmav_observer.estimation.observability import (
     observability_rank,
     unobserved_direction_body,
 )
-from glmav_observer.estimation.observer import ShapeError, e_exact
+from glmav_observer.frames import ShapeError, e_exact
 
 LOST = {"c1": 2, "c2": 0, "c3": 1}
 DT = 0.01

@@ -12,23 +12,22 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from glmav_observer.commands.check import exact_kinematics_scenario
-from glmav_observer.estimation.bank import CONFIG_MASKS, ObserverBank
+from glmav_observer.configurations import CONFIG_MASKS, output_matrix
+from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.observer import (
     G_MPS2,
     NonFiniteInputError,
-    ShapeError,
     a_matrix,
-    e_exact,
     e_small_angle,
     gamma_body_mps2,
     gravity_body_mps2,
     observer_gains,
     observer_rhs,
-    output_matrix,
     phi1_phi2,
     phi1_phi2_scalar,
     zoh_step,
 )
+from glmav_observer.frames import ShapeError, e_exact
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 angles = arrays(np.float64, 3, elements=st.floats(-np.pi, np.pi))
@@ -169,15 +168,6 @@ def test_gains_small_angle_pinv_is_not_transpose() -> None:
     g = observer_gains(E, output_matrix("c1"), 90.0, [0.1, 0.2, 0.3])
     np.testing.assert_allclose(g.Q @ g.Q_pinv, np.eye(2), atol=1e-13)  # right inverse (23)
     assert np.abs(g.Q_pinv - g.Q.T).max() > 1e-3
-
-
-def test_output_matrices() -> None:
-    np.testing.assert_array_equal(output_matrix("c1"), [[1, 0, 0], [0, 1, 0]])
-    np.testing.assert_array_equal(output_matrix("c2"), [[0, 1, 0], [0, 0, 1]])
-    np.testing.assert_array_equal(output_matrix("c3"), [[1, 0, 0], [0, 0, 1]])
-    np.testing.assert_array_equal(output_matrix("full"), np.eye(3))
-    with pytest.raises(ValueError, match="unknown configuration"):
-        output_matrix("c4")
 
 
 @given(angles, rates, vec, vec, vec)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from glmav_observer.estimation.observer import e_exact
+from glmav_observer.frames import e_exact, euler_from_quaternion_wxyz
 from glmav_observer.ingest.framing import new_dialect
 from glmav_observer.ingest.logfiles import (
     LogError,
@@ -23,7 +23,6 @@ from glmav_observer.ingest.logfiles import (
     read_streams,
 )
 from glmav_observer.ingest.logfiles.latency import estimate_gps_delay_s
-from glmav_observer.ingest.logfiles.streams import euler_from_quat
 from glmav_observer.ingest.samples import TruthSample, VelocitySample
 
 
@@ -111,7 +110,7 @@ def test_euler_from_quat_gives_the_same_rotation_as_the_estimators_e() -> None:
         ],
         axis=1,
     )
-    E = e_exact(euler_from_quat(q))
+    E = e_exact(euler_from_quaternion_wxyz(q))
     assert np.max(np.abs(E - R)) < 1e-12  # float64 round-off
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from glmav_observer.estimation.observer import e_exact
+from glmav_observer.frames import e_exact, quaternion_xyzw
 from glmav_observer.publish.rerun import (
     TIMELINE,
     RerunMode,
@@ -22,7 +22,6 @@ from glmav_observer.publish.rerun import (
     build_blueprint,
     open_rerun_sink,
     parse_rerun_mode,
-    quaternion_xyzw,
     read_recording,
 )
 from glmav_observer.publish.sink import Sink
@@ -168,7 +167,7 @@ def test_save_roundtrip(tmp_path: Path) -> None:
     np.testing.assert_allclose(bank_u[TIMELINE], [0.005, 0.01, 0.015], rtol=0, atol=T_TOL_S)
     expected_u = [[1.0 + k + 0.1 * i for i in range(5)] for k in range(3)]
     assert bank_u["Scalars:scalars"] == expected_u  # float64 stored as is
-    # each c-configuration is named with the axis it has lost (records.LOST_AXIS_OF_CONFIG)
+    # each c-configuration is named with the axis it has lost (configurations.LOST_AXIS_OF_CONFIG)
     assert bank_u["static:SeriesLines:names"] == [
         ["full", "c1 (d lost)", "c2 (n lost)", "c3 (e lost)", "active"]
     ]
