@@ -722,8 +722,10 @@ def open_sinks(
     zenoh_enabled: bool | None = None,
     rerun_mode: str | None = None,
     recording_name: str | None = None,
+    zenoh_check_unique: bool = True,
 ) -> list[Sink]:
-    """The sinks asked for by the config and the command line (closed by the caller)."""
+    """The sinks asked for by the config and the command line (closed by the caller).
+    ``zenoh_check_unique``: see :func:`~glmav_observer.publish.zenoh_sink.open_zenoh_sink`."""
     sinks: list[Sink] = []
     try:
         path = out if out is not None else config.out
@@ -741,6 +743,7 @@ def open_sinks(
                     decimation=config.zenoh.decimation,
                     service_id=config.service_id,
                     effective_config=config.effective(),
+                    check_unique=zenoh_check_unique,
                 )
             )
         if config.mavlink_out.enabled:
