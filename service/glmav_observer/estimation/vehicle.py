@@ -287,8 +287,10 @@ class VehicleEstimator:
 
     def seed(self, state: EstimatorSeed) -> None:
         """Continue from another service's last published state (a ``serve --claim``
-        takeover): at the first sample with attitude and IMU known, if the state is at most
-        ``SEED_MAX_AGE_S`` older (vehicle time), every configuration starts from its last
+        takeover): samples older than the state wait (the new owner may read its link
+        later than the old owner published); at the first sample with attitude and IMU
+        known, if the state is at most ``SEED_MAX_AGE_S`` older (vehicle time), every
+        configuration starts from its last
         estimate instead of the measurement, isolated axes stay isolated (the hand-over
         configuration goes on dead-reckoning from the active estimate, its σ growing from
         where it was), and the reference fit starts from b̂, δψ̂, d̂ and their σ (as the
@@ -299,6 +301,22 @@ class VehicleEstimator:
         self.seed_age_s = None
         self.seed_outcome = None
 
+    def _seed_ahead(self, t: float) -> bool:
+        """A sample at ``t`` before the seed's state: wait for the stream to reach it (the
+        new owner may read its link later than the old one published) unless it is more
+        than ``SEED_MAX_AGE_S`` ahead (the vehicle's clock was reset): then start cold.
+        True if the seed was dropped."""
+        assert self._seed is not None
+        ahead = self._seed.t_boot_s - t
+        if ahead <= SEED_MAX_AGE_S:
+            self.counters["estimator_seed_wait_samples"] += 1
+            return False
+        self._seed = None
+        self.seed_age_s = -ahead
+        self.seed_outcome = f"{ahead:.3f} s ahead of the stream (the vehicle's clock was reset?)"
+        self.counters["estimator_seed_rejected"] += 1
+        return True
+
     def _start_from_seed(self, t: float) -> None:
         seed = self._seed
         if seed is None or self._euler is None or self._f is None:
@@ -306,17 +324,13 @@ class VehicleEstimator:
         self._seed = None
         age = t - seed.t_boot_s
         self.seed_age_s = age
-        if not -0.1 <= age <= SEED_MAX_AGE_S:  # 0.1 s: two services' clock models
-            self.seed_outcome = (
-                f"too old ({age:.3f} s > {SEED_MAX_AGE_S:g} s)"
-                if age > 0
-                else f"from the future ({age:.3f} s: the vehicle's clock was reset?)"
-            )
+        if age > SEED_MAX_AGE_S:  # (a sample before the state's time waits: on_sample)
+            self.seed_outcome = f"too old ({age:.3f} s > {SEED_MAX_AGE_S:g} s)"
             self.counters["estimator_seed_rejected"] += 1
             return
         active_v = seed.v_ned_mps.get("active")
         if active_v is None or not all(math.isfinite(x) for x in active_v):
-            self.seed_outcome = "no active estimate"
+            self.seed_outcome = "without an active estimate"
             self.counters["estimator_seed_rejected"] += 1
             return
         euler = self._euler
@@ -399,6 +413,8 @@ class VehicleEstimator:
             self._aiding_sample(s)
             return out
         t = s.t_boot_s
+        if self._seed is not None and t < self._seed.t_boot_s and not self._seed_ahead(t):
+            return out  # older than the state it continues from: covered by that state
         if self.t_bank_s is not None and t > self.t_bank_s:
             if t - self.t_bank_s > self.cfg.max_gap_s:
                 self.restart("gap")
@@ -518,8 +534,8 @@ class VehicleEstimator:
                 self._euler,
             )
         )
-        if self.t_bank_s is None and not self._init_from(s):
-            return
+        if self.t_bank_s is None and (self._seed is not None or not self._init_from(s)):
+            return  # (a seed starts the bank at the next attitude or IMU sample)
         faulty_before = set(self.fdi.faulty_axes())
         imu_hz = 1.0 / self._imu_interval_s if self._imu_interval_s > 0 else 0.0
         if 0.0 < imu_hz < self.cfg.fdi.min_imu_rate_hz:
