@@ -152,6 +152,28 @@ def test_a_state_older_than_the_bound_starts_cold(owner: list[Record]) -> None:
     assert b.active_config == "full"  # nothing carried over
 
 
+def test_a_new_owner_behind_the_state_waits_for_it(owner: list[Record]) -> None:
+    """The new owner reads its link later than the old one published (a backlog on a
+    loaded machine): samples older than the state are covered by it and wait; a stream
+    more than SEED_MAX_AGE_S behind is a clock reset: cold start."""
+    state = _state([r for r in owner if r.t_boot_s <= T_KILL_S])
+    seed = seed_from_state(state)
+    b = VehicleEstimator(1, EstimatorConfig())
+    b.seed(seed)
+    new = _run_from(b, T_KILL_S - 0.3)
+    assert b.seed_outcome == "continued"
+    # applied at the first attitude/IMU sample at or after the state (ATTITUDE: 10 ms)
+    assert b.seed_age_s is not None and 0.0 <= b.seed_age_s <= 0.011, b.seed_age_s
+    assert b.counters["estimator_seed_wait_samples"] > 0
+    assert min(r.t_boot_s for r in _active(new)) >= seed.t_boot_s
+    assert b.active_config == "c3"
+    c = VehicleEstimator(1, EstimatorConfig())
+    c.seed(seed)
+    _run_from(c, T_KILL_S - SEED_MAX_AGE_S - 1.0)
+    assert c.seed_outcome is not None and "ahead of the stream" in c.seed_outcome
+    assert c.counters["estimator_seed_rejected"] == 1
+
+
 def test_a_state_without_an_active_estimate_is_refused() -> None:
     with pytest.raises(HandoverError, match="active estimate"):
         seed_from_state({"velocity": {}, "health": None})
