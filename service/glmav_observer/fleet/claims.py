@@ -231,6 +231,11 @@ class ClaimManager:
         """A claiming message of ``sysid`` was heard (cheap: one dict write)."""
         self._seen[sysid] = time.monotonic()
 
+    def note(self, event: dict[str, Any]) -> None:
+        """Add an event of the estimation side (a seed applied or refused) to ``events``."""
+        with self._lock:
+            self.events.append(event)
+
     def claimants(self, sysid: int) -> set[str]:
         with self._lock:
             return set(self._claimants.get(sysid, ()))
@@ -441,8 +446,7 @@ class ClaimingService(Service):
             logger.info(
                 "vehicle %d started cold: its last published state is %s", sysid, est.seed_outcome
             )
-        with self.claims._lock:
-            self.claims.events.append(event)
+        self.claims.note(event)
 
     def close(self) -> None:
         # release the claims first: the others take over without waiting for the session

@@ -250,6 +250,10 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
 
 def _assert_continued(watch: Watch, victim: str, orphans: list[int], survivors: str) -> None:
     """The new owner went on from the state the victim published last, not from scratch."""
+    said = re.findall(
+        r"vehicle \d+(?: taken over|: continuing| continued| started cold).*", survivors
+    )
+    print("\n".join(said))
     for sysid in orphans:
         m = re.search(
             rf"vehicle {sysid} continued from its last published state: ([\d.]+) s old", survivors
