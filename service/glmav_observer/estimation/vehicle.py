@@ -290,11 +290,11 @@ class VehicleEstimator:
         takeover): samples older than the state wait (the new owner may read its link
         later than the old owner published); at the first sample with attitude and IMU
         known, if the state is at most ``SEED_MAX_AGE_S`` older (vehicle time), every
-        configuration starts from its last
-        estimate instead of the measurement, isolated axes stay isolated (the hand-over
-        configuration goes on dead-reckoning from the active estimate, its σ growing from
-        where it was), and the reference fit starts from b̂, δψ̂, d̂ and their σ (as the
-        fit's priors). Otherwise a cold start, with ``seed_outcome`` saying why."""
+        configuration starts from its last estimate instead of the measurement, isolated
+        axes stay isolated (the hand-over configuration goes on dead-reckoning from the
+        active estimate, its σ growing from where it was), and the reference fit starts
+        from b̂, δψ̂, d̂ and their σ (as the fit's priors). Otherwise a cold start, with
+        ``seed_outcome`` saying why."""
         if self.t_bank_s is not None:
             self.restart("seeded")
         self._seed = state
