@@ -23,7 +23,8 @@ Outputs, as seen by the user:
 - Zenoh: every worker opens its own session with the same prefix and service id; keys
   per vehicle are unchanged (a vehicle is on one worker), the ``state`` queryable
   answers for all vehicles together, ``@alive/<service-id>`` and ``@config/<service-id>``
-  are declared by each worker (same key, same payload);
+  are declared by each worker (same key, same payload); only worker 0 checks that no
+  other service holds the id, and the others build their sinks once it has (``go``);
 - ``--out F.jsonl|.csv``: each worker writes ``F.w<i>.<ext>``; at stop they are joined
   into ``F`` (worker by worker, so each vehicle's rows stay in order) and removed;
 - Rerun: ``save:PATH`` gives one file per worker (``PATH.w<i>.rrd``; open them together);
