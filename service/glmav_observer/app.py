@@ -749,11 +749,13 @@ def open_sinks(
     rerun_mode: str | None = None,
     recording_name: str | None = None,
     rerun_fallback_save_path: str | None = None,
+    zenoh_check_unique: bool = True,
 ) -> list[Sink]:
     """The sinks asked for by the config and the command line (closed by the caller).
 
     ``rerun_fallback_save_path``: ``--rerun spawn`` without a display saves there instead
-    (None: the Rerun sink's default)."""
+    (None: the Rerun sink's default). ``zenoh_check_unique``: see
+    :func:`~glmav_observer.publish.zenoh_sink.open_zenoh_sink`."""
     sinks: list[Sink] = []
     try:
         path = out if out is not None else config.out
@@ -771,6 +773,7 @@ def open_sinks(
                     decimation=config.zenoh.decimation,
                     service_id=config.service_id,
                     effective_config=config.effective(),
+                    check_unique=zenoh_check_unique,
                 )
             )
         if config.mavlink_out.enabled:

@@ -5,9 +5,12 @@ There is no built-in link: 14550 is the ground stations' port, and a daemon that
 by default would steal the vehicle from the GCS (docs/deployment.md shows where to
 attach). ``--config configs/service.toml``, ``--zenoh PATH.json5`` (enables Zenoh with
 that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve`` and ``--out
-PATH.csv|.jsonl`` override the file. ``--workers N`` (default 1) shards vehicles by
-system id across N worker processes (:mod:`glmav_observer.fleet.workers`; ``--workers
-1`` is the single-process service); ``--claim`` makes this service estimate only the
+PATH.csv|.jsonl`` override the file. ``--workers N`` shards vehicles by system id across
+N worker processes (:mod:`glmav_observer.fleet.workers`; ``--workers 1`` is the
+single-process service). Without ``--workers``: the number of cores this process may use
+(its CPU affinity), or 1 when an output needs one process (``--rerun spawn|serve``: one
+viewer, one port; ``--mavlink-out``: one sender per vehicle link; a signing state file:
+one writer), said in the log; ``--claim`` makes this service estimate only the
 vehicles it claims on Zenoh, so that several services can share one fleet
 (:mod:`glmav_observer.fleet.claims`). ``--service-id NAME`` names this service on Zenoh
 (in every payload, its liveliness token and its config key; a second service with the
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -51,8 +55,8 @@ def register(sub: Any) -> None:
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
     p.add_argument("--workers", type=_workers, default=None, metavar="N",
-                   help="worker processes, vehicles sharded by system id (default 1; the "
-                   "number of cores: --workers $(nproc))")  # fmt: skip
+                   help="worker processes, vehicles sharded by system id (default: the "
+                   "usable cores, or 1 when an output needs one process; 1 = one process)")  # fmt: skip
     p.add_argument("--claim", action="store_true",
                    help="estimate only the vehicles claimed on Zenoh (several services, one fleet)")  # fmt: skip
     p.add_argument("--mavlink-out", default=None, metavar="CONN",
@@ -75,6 +79,29 @@ def _workers(text: str) -> int:
     return n
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity: a container's or taskset's
+    limit, not the machine's count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no sched_getaffinity (macOS)
+        return max(1, os.cpu_count() or 1)
+
+
+def default_workers(config: ServiceConfig, rerun_mode: str | None) -> tuple[int, str]:
+    """``(workers, why)`` without ``--workers``: the usable cores, or 1 when an output
+    needs a single process."""
+    mode = rerun_mode if rerun_mode is not None else config.rerun.mode
+    if mode in ("spawn", "serve"):
+        return 1, f"--rerun {mode} needs one process (one viewer, one port)"
+    if config.mavlink_out.enabled:
+        return 1, "--mavlink-out needs one process (one sender on its link)"
+    if config.signing_key is not None and config.signing_state_file:
+        return 1, "a signing state file needs one process (one writer)"
+    n = usable_cores()
+    return n, f"{n} usable cores"
+
+
 def main(args: argparse.Namespace) -> int:
     from glmav_observer.app import open_sinks, serve
     from glmav_observer.config import check_rerun_mode, load_config
@@ -82,9 +109,6 @@ def main(args: argparse.Namespace) -> int:
     from glmav_observer.publish.file_sink import FileSinkError
     from glmav_toml import ConfigError
 
-    # default 1: the sharded router does not yet carry every guarantee of the single
-    # process (exclusive UDP ports, signing state, sink isolation: docs/deployment.md)
-    workers = args.workers if args.workers is not None else 1
     try:
         config = load_config(args.config)
         if args.service_id is not None:
@@ -104,10 +128,15 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, OSError, ValueError) as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
+    workers = args.workers
+    if workers is None:
+        workers, why = default_workers(config, args.rerun)
+        logger.info("serve: %d worker process(es): %s (--workers N to choose)", workers, why)
     if workers > 1:
         try:
+            _check_outputs(args)  # the outputs' own errors first, as with one process
             _check_links(links)
-        except LinkError as err:
+        except (ConfigError, ValueError, LinkError) as err:
             print(f"glmav-observer serve: {err}", file=sys.stderr)
             return 2
         return _main_sharded(args, config, links, workers)
@@ -141,6 +170,15 @@ def main(args: argparse.Namespace) -> int:
         print("glmav-observer serve: an output failed: see SINK FAILED above", file=sys.stderr)
         return 1
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Raise for a Zenoh config file that cannot be parsed (the workers open the session;
+    their other errors come back from them)."""
+    if args.zenoh is not None:
+        from glmav_observer.publish.zenoh_sink import load_zenoh_config
+
+        load_zenoh_config(args.zenoh)
 
 
 def _check_links(links: list[str]) -> None:

@@ -285,6 +285,29 @@ class ReferenceFit:
     _t_lag_memory_s: float = -math.inf
     rows_per_axis: list[int] = field(default_factory=lambda: [0, 0, 0])
     fitted_axes: frozenset[int] = frozenset()
+    #: a prior on (b x, y, z, δψ) carried over from another service's fit (a ``serve
+    #: --claim`` takeover, :meth:`carry_over`): means, σ, and the vehicle time until which
+    #: it replaces the config's zero-mean priors
+    carried_prior: tuple[tuple[float, ...], tuple[float, ...], float] | None = None
+
+    def carry_over(
+        self,
+        theta: tuple[float, ...],
+        sigma: tuple[float, ...],
+        t_s: float,
+        until_s: float,
+    ) -> None:
+        """Start from what another fit learnt: ``theta``/``sigma`` = (b x, y, z, δψ, d)
+        and their 1σ. b and δψ become the priors of the fits until ``until_s`` (vehicle
+        time; then this fit's own window holds as much as the one it continues); the lag
+        goes into the lag memory (it is a property of the link, kept as long)."""
+        self.carried_prior = (tuple(theta[:4]), tuple(max(x, 1e-6) for x in sigma[:4]), until_s)
+        base = 1.0 / self.cfg.prior_lag_s**2
+        info = 1.0 / max(sigma[4], LAG_SIGMA_MIN_S) ** 2 - base
+        if info > 0.0:  # the prior's mean is then (memory info · memory mean) / (base + info)
+            self.lag_memory_info = info
+            self.lag_memory_s = theta[4] * (base + info) / info
+            self._t_lag_memory_s = t_s
 
     def add(self, t_s: float, axis: int, z_mps: float, ints: Integrals, sigma_mps: float) -> None:
         self.rows.append((t_s, axis, z_mps, ints[0], ints[1], sigma_mps, ints[2]))
@@ -387,6 +410,10 @@ class ReferenceFit:
         else:
             mean = np.zeros(N_THETA)
             mean[LAG], prior[LAG] = lag_prior
+            carried = self.carried_prior
+            if carried is not None and rows[-1][0] <= carried[2]:
+                mean[3:7] = carried[0]
+                prior[3:7] = 1.0 / np.square(carried[1])
         XtW = X.T * w
         info = XtW @ X + np.diag(prior)
         rhs = XtW @ z + prior * mean
@@ -935,6 +962,17 @@ class AxisMonitor:
             self._frozen = self._frozen.shifted(self.index, statistics.median(rb))
         self._resid.clear()
 
+    def continue_isolation(
+        self, fault: FaultEvent, frozen: Reference | None, level_mps: float
+    ) -> None:
+        """Continue an isolation another service made (a ``serve --claim`` takeover): the
+        same fault event, dead reckoning from ``frozen``, ``level_mps`` the fault's residual
+        (the size a bias recovery looks for)."""
+        self.isolate(fault.t_detect_s, FaultKind(fault.kind))
+        self.fault = fault
+        self._frozen = frozen
+        self._fault_level_mps = level_mps
+
     def force_dropout(self, t_s: float) -> bool:
         """The measurement stream is missing: isolate as a dropout. True if newly isolated."""
         if self.state is AxisState.FAULTY:
@@ -1074,6 +1112,7 @@ class FaultDetector:
         used (the verdicts ``v`` are returned with ``use`` off)."""
         if db is not None:
             self.accel_changes.append(AccelChange(t_s, t_c, db, by))
+            self.fit.carried_prior = None  # the accelerometer changed: not its bias any more
         self.fit.drop_before(math.inf)
         for ax in self.axes:
             ax.rebase()

@@ -101,8 +101,33 @@ ACCEL_EVENT_HOLD_S = 5.0
 RECOVERY_BLEND_S = 1.0
 #: Measurements between two updates of the gain of ``full`` (~5 s at 25 Hz).
 GAMMA_UPDATE_SAMPLES = 125
+#: The oldest state (vehicle s between its estimates and the first sample it is applied
+#: at) a vehicle taken over is continued from (:meth:`VehicleEstimator.seed`). The new
+#: owner has none of the IMU between the two: a measured axis converges again at rate γ
+#: anyway, but a dead-reckoned (isolated) axis keeps the velocity change of that interval
+#: as its error, |∫ V̇ dt| ≤ max|V̇| · age (0.2 m/s at 0.1 m/s² in a hover); an older
+#: state starts cold from the measurement.
+SEED_MAX_AGE_S = 2.0
 
 Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorSeed:
+    """The last state another service published of a vehicle it estimated (its state
+    queryable and health, docs/zenoh.md), to continue from on a ``serve --claim`` takeover."""
+
+    t_boot_s: float  # vehicle time of the estimates
+    #: NED velocity per configuration (``full``, ``c1``, ``c2``, ``c3``) and ``active``
+    v_ned_mps: Mapping[str, Vec3]
+    active_config: str
+    #: 1σ of each dead-reckoned axis (per configuration and ``active``, where one is lost)
+    sigma_lost_mps: Mapping[str, float] = field(default_factory=dict)
+    #: the velocity axes isolated at ``t_boot_s`` (not ``accel_bias`` events)
+    isolated: tuple[FaultEvent, ...] = ()
+    #: the health record's residual per NED axis: an isolated axis's fault level
+    residual_ned_mps: Vec3 = (0.0, 0.0, 0.0)
+    reference_fit: ReferenceFitSummary | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,6 +202,11 @@ class VehicleEstimator:
         self.faults: list[FaultEvent] = []
         self.switches: list[SwitchEvent] = []
         self._seq: collections.Counter[str] = collections.Counter()
+        self._seed: EstimatorSeed | None = None
+        #: vehicle s between a seed's state and the sample it was applied at (None: none)
+        self.seed_age_s: float | None = None
+        #: "continued", or why the seed was not used ("too old"), once it was considered
+        self.seed_outcome: str | None = None
         self._restart()
 
     # ------------------------------------------------------------------ state
@@ -225,6 +255,115 @@ class VehicleEstimator:
         self.counters[f"estimator_restart_{reason}"] += 1
         self._restart()
 
+    def seed(self, state: EstimatorSeed) -> None:
+        """Continue from another service's last published state (a ``serve --claim``
+        takeover): samples older than the state wait (the new owner may read its link
+        later than the old owner published); at the first sample with attitude and IMU
+        known, if the state is at most ``SEED_MAX_AGE_S`` older (vehicle time), every
+        configuration starts from its last estimate instead of the measurement, isolated
+        axes stay isolated (the hand-over configuration goes on dead-reckoning from the
+        active estimate, its σ growing from where it was), and the reference fit starts
+        from b̂, δψ̂, d̂ and their σ (as the fit's priors). Otherwise a cold start, with
+        ``seed_outcome`` saying why."""
+        if self.t_bank_s is not None:
+            self.restart("seeded")
+        self._seed = state
+        self.seed_age_s = None
+        self.seed_outcome = None
+
+    def _seed_ahead(self, t: float) -> bool:
+        """A sample at ``t`` before the seed's state: wait for the stream to reach it (the
+        new owner may read its link later than the old one published) unless it is more
+        than ``SEED_MAX_AGE_S`` ahead (the vehicle's clock was reset): then start cold.
+        True if the seed was dropped."""
+        assert self._seed is not None
+        ahead = self._seed.t_boot_s - t
+        if ahead <= SEED_MAX_AGE_S:
+            self.counters["estimator_seed_wait_samples"] += 1
+            return False
+        self._seed = None
+        self.seed_age_s = -ahead
+        self.seed_outcome = f"{ahead:.3f} s ahead of the stream (the vehicle's clock was reset?)"
+        self.counters["estimator_seed_rejected"] += 1
+        return True
+
+    def _start_from_seed(self, t: float) -> None:
+        seed = self._seed
+        if seed is None or self._euler is None or self._f is None:
+            return
+        self._seed = None
+        age = t - seed.t_boot_s
+        self.seed_age_s = age
+        if age > SEED_MAX_AGE_S:  # (a sample before the state's time waits: on_sample)
+            self.seed_outcome = f"too old ({age:.3f} s > {SEED_MAX_AGE_S:g} s)"
+            self.counters["estimator_seed_rejected"] += 1
+            return
+        active_v = seed.v_ned_mps.get("active")
+        if active_v is None or not all(math.isfinite(x) for x in active_v):
+            self.seed_outcome = "without an active estimate"
+            self.counters["estimator_seed_rejected"] += 1
+            return
+        euler = self._euler
+        cfg = self.cfg
+        isolated = sorted(seed.isolated, key=lambda f: f.t_detect_s)
+        faulty = [NED_AXES.index(f.axis) for f in isolated]
+        active = CONFIG_WITHOUT_AXIS[faulty[0]] if faulty else "full"
+        for c in CONFIGS:
+            v = active_v if c == active else seed.v_ned_mps.get(c, active_v)
+            ok = all(math.isfinite(x) for x in v)
+            self.bank.set_state_ned(c, v if ok else active_v, euler)
+        self.bank.step(0.0, euler, self._omega(), self._f, [math.nan] * 3, None)
+        self._E = self.bank.e_last.ravel().tolist()
+        self.t_bank_s = self.t_first_s = self._next_health_s = t
+
+        def t0_of(sigma: float | None, t_default: float) -> float:
+            """The start of a dead reckoning whose σ (:meth:`_sigma_lost`) was ``sigma``
+            at the seed's time: σ² = σ0² + (σ_b τ)² + q τ solved for τ."""
+            f = cfg.fdi
+            if sigma is None or not math.isfinite(sigma):
+                return t_default
+            a, b = f.sigma_bias_mps2**2, f.accel_noise_density**2
+            c = f.sigma_handover_mps**2 - sigma * sigma
+            tau = (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a) if c < 0.0 else 0.0
+            return seed.t_boot_s - tau
+
+        self._t_seed_s = [t0_of(seed.sigma_lost_mps.get(c), t) for c in CONFIGS]
+        fit = seed.reference_fit
+        ref: Reference | None = None
+        if fit is not None:
+            theta = (
+                *active_v,
+                *fit.accel_bias_body_mps2,
+                fit.heading_error_rad,
+                fit.measurement_lag_s,
+            )
+            sig_v = cfg.fdi.sigma_handover_mps
+            sig = (
+                sig_v, sig_v, sig_v, *fit.accel_bias_sigma_mps2,
+                fit.heading_error_sigma_rad, fit.measurement_lag_sigma_s,
+            )  # fmt: skip
+            b_int, c_int, _ = self._ints()
+            cov = np.diag(np.square(np.maximum(np.asarray(sig, dtype=np.float64), 1e-6)))
+            ref = Reference(
+                tuple(float(x) for x in theta), cov, b_int, (c_int[0], c_int[1], c_int[2])
+            )
+            self.fdi.fit.ref = ref
+            until = t + cfg.fdi.bias_window_s + cfg.fdi.vet_delay_s
+            self.fdi.fit.carry_over(theta[3:], sig[3:], t, until)
+        for f_ev, j in zip(isolated, faulty, strict=True):
+            level = seed.residual_ned_mps[j]
+            self.fdi.axes[j].continue_isolation(
+                f_ev, None if ref is None else ref.held(), level if math.isfinite(level) else 0.0
+            )
+        if faulty:
+            self._active = active
+            self._lost_axis_idx = faulty[0]
+            self._t_handover_s = t0_of(seed.sigma_lost_mps.get("active"), isolated[0].t_detect_s)
+            self._ints_handover = self._ints()
+            self._ref_handover = None if ref is None else ref.held()
+        self.counters["estimator_seeded"] += 1
+        self.seed_outcome = "continued"
+
     @property
     def active_config(self) -> str:
         return self._active
@@ -244,6 +383,8 @@ class VehicleEstimator:
             self._aiding_sample(s)
             return out
         t = s.t_boot_s
+        if self._seed is not None and t < self._seed.t_boot_s and not self._seed_ahead(t):
+            return out  # older than the state it continues from: covered by that state
         if self.t_bank_s is not None and t > self.t_bank_s:
             if t - self.t_bank_s > self.cfg.max_gap_s:
                 self.restart("gap")
@@ -256,6 +397,8 @@ class VehicleEstimator:
         if isinstance(s, AttitudeSample):
             self._euler = s.euler_rad
             self._omega_att = s.omega_body_radps
+            if self._seed is not None and self.t_bank_s is None:
+                self._start_from_seed(t)
         elif isinstance(s, ImuSample):
             self.streams.imu(t)
             f_used = self.despike.filter(s.f_body_mps2)
@@ -266,6 +409,8 @@ class VehicleEstimator:
                 f_used = self._f
             self._f = f_used
             self._omega_imu = s.omega_body_radps
+            if self._seed is not None and self.t_bank_s is None:
+                self._start_from_seed(t)
             if self.t_bank_s is not None:
                 self._check_missing(t)
                 self._velocity_records(out)
@@ -354,8 +499,8 @@ class VehicleEstimator:
                 self._euler,
             )
         )
-        if self.t_bank_s is None and not self._init_from(s):
-            return
+        if self.t_bank_s is None and (self._seed is not None or not self._init_from(s)):
+            return  # (a seed starts the bank at the next attitude or IMU sample)
         faulty_before = set(self.fdi.faulty_axes())
         imu_hz = self.streams.imu_hz
         if 0.0 < imu_hz < self.cfg.fdi.min_imu_rate_hz:

@@ -21,12 +21,19 @@ heard in the last ``vehicle_timeout_s``:
 
 When a service dies its session ends, Zenoh withdraws its tokens (at once when the
 process dies and its TCP connections close, after the session lease otherwise), and the
-others claim its vehicles at their next turn. The new owner starts that vehicle's
-estimation from the live stream, and logs the last health record the previous owner
-published (vehicle time, active configuration, isolated faults; every claiming service
-keeps the latest ``<prefix>/<sysid>/health`` of every vehicle from a subscription: 10 Hz
-per vehicle, where the velocity keys would be 250 Hz) and the gap since it. Until it publishes, a query on
-``<prefix>/<sysid>/state`` is answered by no one; afterwards by the new owner.
+others claim its vehicles at their next turn. The new owner continues that vehicle's
+estimation from the last state the previous owner published: at every turn each
+claiming service queries ``<prefix>/*/state`` (the owners' state queryables, answered
+from other processes only) and keeps, per vehicle it hears but does not own, the newest
+reply (:mod:`glmav_observer.fleet.handover`: the last estimate of every configuration,
+the active configuration, isolated faults, the reference fit). On the claim, the
+vehicle's :class:`~glmav_observer.estimation.vehicle.VehicleEstimator` is seeded with it
+(:meth:`~glmav_observer.estimation.vehicle.VehicleEstimator.seed`: applied at the first
+attitude/IMU sample if the state is at most ``SEED_MAX_AGE_S`` old in vehicle time, else
+a cold start from the live stream), and the log says which, with the state's age. The
+new owner also logs the gap since the last health record the previous owner published
+(every claiming service keeps the latest ``<prefix>/<sysid>/health``, 10 Hz per vehicle,
+from a subscription).
 
 Messages of vehicles this service does not own are counted (``not_owned_messages``) and
 not estimated; messages that start no claim (a ground station's heartbeats) pass.
@@ -44,6 +51,8 @@ from typing import TYPE_CHECKING, Any
 
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
+from glmav_observer.estimation.vehicle import EstimatorSeed
+from glmav_observer.fleet.handover import HandoverError, seed_from_state, state_time_s
 from glmav_observer.publish.sink import Sink
 
 if TYPE_CHECKING:
@@ -108,6 +117,9 @@ class ClaimManager:
         self._members: set[str] = {self.zid}
         #: last health record published by anyone: sysid -> (monotonic s, payload bytes)
         self._last_health: dict[int, tuple[float, bytes]] = {}
+        #: newest state queryable reply per vehicle not owned: sysid -> (monotonic s, payload)
+        self._last_state: dict[int, tuple[float, dict[str, Any]]] = {}
+        self.state_replies = 0
         self.events: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._member_token = session.liveliness().declare_token(members_key(prefix, self.zid))
@@ -154,10 +166,75 @@ class ClaimManager:
             return
         self._last_health[sysid] = (time.monotonic(), sample.payload.to_bytes())
 
+    def _on_state_reply(self, reply: zenoh.Reply) -> None:
+        sample = reply.ok
+        if sample is None:
+            return
+        try:
+            state = json.loads(sample.payload.to_bytes())
+            sysid = int(state["sysid"])
+        except (ValueError, KeyError, TypeError):
+            return
+        if sysid in self.owned:
+            return
+        t = state_time_s(state)
+        with self._lock:
+            self.state_replies += 1
+            old = self._last_state.get(sysid)
+            # several services may answer for one vehicle (one that released it keeps its
+            # last records): the newest estimate is the owner's
+            if old is None or not t <= state_time_s(old[1]):
+                self._last_state[sysid] = (time.monotonic(), state)
+
+    def _query_states(self, owned: set[int]) -> None:
+        """Ask the other services for the state of the vehicles heard and not owned."""
+        if not set(self._seen) - owned:
+            return
+        zenoh = self._zenoh
+        try:
+            self._session.get(
+                f"{self.prefix}/*/state",
+                self._on_state_reply,
+                consolidation=zenoh.ConsolidationMode.NONE,  # every owner's reply
+                allowed_destination=zenoh.Locality.REMOTE,  # not this process's own
+                timeout=self.period_s,
+            )
+        except zenoh.ZError as exc:
+            logger.debug("state query failed: %s", exc)
+
+    def take_seed(self, sysid: int) -> EstimatorSeed | None:
+        """The newest state another service published of ``sysid`` as a seed (None:
+        none heard, or one that cannot seed; logged)."""
+        with self._lock:
+            last = self._last_state.pop(sysid, None)
+        if last is None:
+            logger.info("vehicle %d: no published state to continue from (cold start)", sysid)
+            return None
+        t_rx, state = last
+        try:
+            seed = seed_from_state(state)
+        except HandoverError as err:
+            logger.warning("vehicle %d: its last published state cannot be used: %s", sysid, err)
+            return None
+        logger.info(
+            "vehicle %d: continuing from the state service %s published (t_boot %.3f s, "
+            "received %.3f s ago)",
+            sysid,
+            state.get("service_id"),
+            seed.t_boot_s,
+            time.monotonic() - t_rx,
+        )
+        return seed
+
     # -- the estimation loop's side --------------------------------------------------------
     def saw(self, sysid: int) -> None:
         """A claiming message of ``sysid`` was heard (cheap: one dict write)."""
         self._seen[sysid] = time.monotonic()
+
+    def note(self, event: dict[str, Any]) -> None:
+        """Add an event of the estimation side (a seed applied or refused) to ``events``."""
+        with self._lock:
+            self.events.append(event)
 
     def claimants(self, sysid: int) -> set[str]:
         with self._lock:
@@ -209,6 +286,7 @@ class ClaimManager:
                 load[self.zid] = load.get(self.zid, 0) + 1
                 self._unclaimed_turns.pop(sysid, None)
         self.owned = frozenset(owned)
+        self._query_states(owned)
 
     def _claim(self, sysid: int) -> bool:
         try:
@@ -293,11 +371,18 @@ class ClaimingService(Service):
         self.claims = ClaimManager(
             zs.session, zs.prefix, period_s=period_s, vehicle_timeout_s=zs.vehicle_timeout_s
         )
+        #: the owned vehicles this service has started estimating (since their claim)
+        self._estimating: set[int] = set()
+        #: seeds for vehicles whose estimator does not exist yet
+        self._pending_seeds: dict[int, EstimatorSeed] = {}
+        #: seeded vehicles whose seed has not been applied yet
+        self._seeding: set[int] = set()
 
     def feed_message(self, msg: Any, t_arrival_s: float, link_id: str = "") -> int:
         sysid = msg.get_srcSystem()
         claims = self.claims
         if sysid not in claims.owned:
+            self._estimating.discard(sysid)
             if msg.get_type() in CLAIMING_MESSAGES:
                 claims.saw(sysid)
                 self.messages += 1
@@ -305,7 +390,63 @@ class ClaimingService(Service):
                 return 0
             return super().feed_message(msg, t_arrival_s, link_id)
         claims.saw(sysid)
-        return super().feed_message(msg, t_arrival_s, link_id)
+        if sysid not in self._estimating:
+            self._estimating.add(sysid)
+            self._begin(sysid)
+        n = super().feed_message(msg, t_arrival_s, link_id)
+        if sysid in self._seeding:
+            self._check_seeded(sysid)
+        return n
+
+    def _begin(self, sysid: int) -> None:
+        """A vehicle newly claimed: its estimator continues from the last published state
+        (or, without one, starts afresh from the live stream)."""
+        seed = self.claims.take_seed(sysid)
+        est = self.estimators.get(sysid)
+        if seed is None:
+            self._pending_seeds.pop(sysid, None)
+            if est is not None and est.t_bank_s is not None:
+                est.restart("claimed")  # estimated before a release: that state is stale
+            return
+        self._seeding.add(sysid)
+        if est is None:
+            self._pending_seeds[sysid] = seed  # the ingest has not announced it yet
+        else:
+            est.seed(seed)
+
+    def _new_estimator(self, sysid: int, link_id: str) -> None:
+        super()._new_estimator(sysid, link_id)
+        seed = self._pending_seeds.pop(sysid, None)
+        if seed is not None:
+            self.estimators[sysid].seed(seed)
+
+    def _check_seeded(self, sysid: int) -> None:
+        est = self.estimators.get(sysid)
+        if est is None or est.seed_outcome is None:
+            return
+        self._seeding.discard(sysid)
+        event: dict[str, Any] = {
+            "event": "seeded",
+            "sysid": sysid,
+            "outcome": est.seed_outcome,
+            "state_age_s": est.seed_age_s,
+            "active_config": est.active_config,
+            "t": time.monotonic(),
+        }
+        if est.seed_outcome == "continued":
+            logger.info(
+                "vehicle %d continued from its last published state: %.3f s old (vehicle "
+                "time), active %s, isolated %s",
+                sysid,
+                est.seed_age_s,
+                est.active_config,
+                [f"{ax.fault.axis} ({ax.fault.kind})" for ax in est.fdi.axes if ax.fault],
+            )
+        else:
+            logger.info(
+                "vehicle %d started cold: its last published state is %s", sysid, est.seed_outcome
+            )
+        self.claims.note(event)
 
     def close(self) -> None:
         # release the claims first: the others take over without waiting for the session

@@ -23,7 +23,8 @@ Outputs, as seen by the user:
 - Zenoh: every worker opens its own session with the same prefix and service id; keys
   per vehicle are unchanged (a vehicle is on one worker), the ``state`` queryable
   answers for all vehicles together, ``@alive/<service-id>`` and ``@config/<service-id>``
-  are declared by each worker (same key, same payload);
+  are declared by each worker (same key, same payload); only worker 0 checks that no
+  other service holds the id, and the others build their sinks once it has (``go``);
 - ``--out F.jsonl|.csv``: each worker writes ``F.w<i>.<ext>``; at stop they are joined
   into ``F`` (worker by worker, so each vehicle's rows stay in order) and removed;
 - Rerun: ``save:PATH`` gives one file per worker (``PATH.w<i>.rrd``; open them together);
@@ -274,6 +275,12 @@ def _worker_main(
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     configure_logging(spec.log_level, spec.log_format)
     try:
+        if spec.index > 0:  # wait until worker 0 has checked the service id on Zenoh
+            try:
+                if inbox.recv() != "go":
+                    return
+            except EOFError:  # the parent gave up starting
+                return
         service = build_service(spec)
     except Exception as err:  # reported to the parent, which exits 2 with it
         outbox.send(("error", str(err)))
@@ -333,6 +340,9 @@ def build_service(spec: WorkerSpec) -> Service:
         zenoh_enabled=spec.zenoh_enabled,
         rerun_mode=worker_rerun_mode(spec.rerun_mode, spec.index),
         recording_name=f"glmav-observer worker {spec.index}",
+        # the workers share one service id: worker 0 checks it is free on Zenoh before
+        # the others start (ShardedServer), who would otherwise see each other's token
+        zenoh_check_unique=spec.index == 0,
     )
     if spec.claim:
         from glmav_observer.fleet.claims import ClaimingService
@@ -378,7 +388,10 @@ class ShardedServer:
                 res_w.close()
                 self.workers.append(_Worker(spec.index, proc, inbox_w, res_r))
             deadline = time.monotonic() + start_timeout_s
-            for w in self.workers:
+            for i, w in enumerate(self.workers):
+                if i == 1:
+                    for later in self.workers[1:]:  # worker 0 is ready: the id is ours
+                        later.inbox.send("go")
                 left = max(0.0, deadline - time.monotonic())
                 if not w.results.poll(left):
                     raise WorkerError(f"worker {w.index} did not start in {start_timeout_s:.0f} s")

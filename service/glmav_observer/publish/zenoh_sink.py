@@ -305,6 +305,7 @@ class ZenohSink:
         service_id: str,
         effective_config: Mapping[str, Any],
         vehicle_timeout_s: float = 5.0,
+        check_unique: bool = True,
     ) -> None:
         import zenoh
 
@@ -329,7 +330,8 @@ class ZenohSink:
         self.after_close = 0
         self.queries_answered = 0
         self._config_payload = encode_json(self.config_payload())
-        self._check_unique()
+        if check_unique:  # off for the 2nd..Nth worker of one service (fleet.workers)
+            self._check_unique()
         self._queryables = [
             session.declare_queryable(state_key(self.prefix), self._on_state_query),
             session.declare_queryable(
@@ -585,11 +587,14 @@ def open_zenoh_sink(
     service_id: str,
     effective_config: Mapping[str, Any],
     vehicle_timeout_s: float = 5.0,
+    check_unique: bool = True,
 ) -> ZenohSink:
     """Open the service's Zenoh session and sink (docs/zenoh.md).
 
     ``zenoh_config_path``: a Zenoh JSON5 file, or None for the embedded loopback peer.
     ``decimation``: per key kind (``KINDS``), publish every Nth record (0 = off).
+    ``check_unique``: refuse to start when a namesake holds ``@alive/<service-id>``
+    (False for the workers after the first of one ``serve --workers N``: they share the id).
     Raises :class:`ZenohConfigError` (a ``ValueError``) with a self-contained message.
     """
     check_prefix(prefix)
@@ -606,6 +611,7 @@ def open_zenoh_sink(
             service_id=service_id,
             effective_config=effective_config,
             vehicle_timeout_s=vehicle_timeout_s,
+            check_unique=check_unique,
         )
     except BaseException:
         session.close()  # type: ignore[no-untyped-call]

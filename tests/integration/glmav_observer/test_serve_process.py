@@ -27,7 +27,8 @@ def test_serve_stops_cleanly_and_flushes(
     port = free_udp_port()
     out = tmp_path / "live.csv"
     serve = subprocess.Popen(
-        [OBS, "serve", "--link", f"udpin:127.0.0.1:{port}", "--out", str(out)],
+        # one process: the rate requests and the summary below are the single service's
+        [OBS, "serve", "--workers", "1", "--link", f"udpin:127.0.0.1:{port}", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:

@@ -300,11 +300,16 @@ def test_two_services_on_one_router_are_told_apart_and_a_namesake_refuses(
     )
     zenoh_config = client_config(tmp_path / "client.json5", router.port)
     ports = {"svc-a": free_udp_port(), "svc-b": free_udp_port()}
+    # svc-a in 2 worker processes sharing its id (only worker 0 checks it is free: the
+    # second used to refuse on the first's token), svc-b in one
+    workers = {"svc-a": "2", "svc-b": "1"}
     services = {
         sid: subprocess.Popen(
             [
                 *CLI,
                 "serve",
+                "--workers",
+                workers[sid],
                 "--zenoh",
                 str(zenoh_config),
                 "--service-id",

@@ -20,6 +20,27 @@ def record_tlog(tmp: Path, seconds: float = 6.0, scenario: str = "hover") -> Pat
     return record(tmp / f"{scenario}-{seconds:g}s.tlog", seconds, scenario=scenario)
 
 
+def record_fault_tlog(
+    tmp: Path, seconds: float, *, axis: str, kind: str, t_start_s: float, magnitude: float = 0.0
+) -> Path:
+    """:func:`record_tlog` of a hover with a velocity-sensor fault on ``axis`` from
+    ``t_start_s`` to the end (the scenario's faults replaced)."""
+    from dataclasses import replace
+
+    from glmav_sitl.fleet import DESIGN_RATES_HZ
+    from glmav_sitl.runner import run
+    from glmav_sitl.scenario import Fault, load_scenario, load_sitl_config
+
+    scenario = load_scenario("hover")
+    fault = Fault("velocity", kind, t_start_s, seconds + 1.0, axis, magnitude)
+    scenario = replace(scenario, faults=(fault,))
+    sitl = load_sitl_config()
+    path = tmp / f"hover-{kind}-{axis}-{seconds:g}s.tlog"
+    rates = {**sitl.rates_hz, **DESIGN_RATES_HZ}
+    run(scenario, (), seconds, "max", 0, path, sitl=replace(sitl, rates_hz=rates))
+    return path
+
+
 def wait_bound_udp(port: int, proc: subprocess.Popen[str], timeout_s: float = 60.0) -> None:
     """Until ``proc`` has bound UDP ``port`` on 127.0.0.1 (an event, with a deadline)."""
     deadline = time.monotonic() + timeout_s
