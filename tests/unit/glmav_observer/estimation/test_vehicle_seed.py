@@ -15,7 +15,6 @@ import json
 import math
 
 import pytest
-from test_vehicle_synthetic import FAULTS, _truth, flight
 
 from glmav_observer.estimation.vehicle import (
     SEED_MAX_AGE_S,
@@ -25,6 +24,7 @@ from glmav_observer.estimation.vehicle import (
 from glmav_observer.fleet.handover import HandoverError, seed_from_state
 from glmav_observer.publish.zenoh_sink import encode_json
 from glmav_observer.records import HealthRecord, Record, VelocityRecord
+from glmav_testkit.synthetic_flight import FAULTS, flight, truth
 
 T_FAULT_S = 5.0
 T_KILL_S = 7.0
@@ -60,7 +60,7 @@ def _active(records: list[Record]) -> list[VelocityRecord]:
 
 
 def _err_e(r: VelocityRecord) -> float:
-    return r.v_ned_mps[E] - float(_truth(r.t_boot_s)[0][E])
+    return r.v_ned_mps[E] - float(truth(r.t_boot_s)[0][E])
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +105,7 @@ def test_the_new_owner_continues_the_isolation_and_the_dead_reckoning(
     # (the new owner has no IMU for the gap: the analysis of SEED_MAX_AGE_S)
     act_a = _active(before)[-1]
     act_b = _active(new)
-    dv_gap = float(_truth(act_b[0].t_boot_s)[0][E] - _truth(act_a.t_boot_s)[0][E])
+    dv_gap = float(truth(act_b[0].t_boot_s)[0][E] - truth(act_a.t_boot_s)[0][E])
     # (0.002: the first record comes after one IMU step of ≤ 4 ms, |V̇| ≤ 0.4 m/s² here)
     assert _err_e(act_b[0]) == pytest.approx(_err_e(act_a) - dv_gap, abs=0.002)
     # ... and then dead-reckons like the owner would have: over the next 3 s B's east error
@@ -125,8 +125,8 @@ def test_the_new_owner_continues_the_isolation_and_the_dead_reckoning(
     late = [r for r in act_b if r.t_boot_s > t1 + 0.2]
     late_a = [r for r in a_after.values() if r.t_boot_s > t1 + 0.2]
     for j in (0, 2):
-        err_b = max(abs(r.v_ned_mps[j] - float(_truth(r.t_boot_s)[0][j])) for r in late)
-        err_a = max(abs(r.v_ned_mps[j] - float(_truth(r.t_boot_s)[0][j])) for r in late_a)
+        err_b = max(abs(r.v_ned_mps[j] - float(truth(r.t_boot_s)[0][j])) for r in late)
+        err_a = max(abs(r.v_ned_mps[j] - float(truth(r.t_boot_s)[0][j])) for r in late_a)
         print(f"axis {j}: worst error after 0.2 s, B {err_b:.3f}, A {err_a:.3f} m/s")
         assert err_b <= err_a + 0.01, (j, err_b, err_a)
 

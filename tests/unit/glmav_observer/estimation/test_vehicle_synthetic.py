@@ -10,8 +10,7 @@ Euler rates (exact kinematics); ATTITUDE at 100 Hz; LOCAL_POSITION_NED at 30 Hz 
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -19,86 +18,12 @@ import pytest
 from glmav_observer.estimation.vehicle import EstimatorConfig, Vec3, VehicleEstimator
 from glmav_observer.evaluation import TruthScorer
 from glmav_observer.ingest.samples import (
-    AttitudeSample,
     ImuSample,
-    ImuSource,
     Sample,
-    TruthSample,
     VelocitySample,
 )
 from glmav_observer.records import Record, VelocityRecord
-
-G = 9.81
-BIAS_BODY = np.array([0.15, -0.1, 0.12])
-
-
-def _truth(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    v = np.array([2 + 0.5 * math.sin(0.7 * t), 0.8 * math.sin(0.5 * t), 0.3 * math.sin(0.9 * t)])
-    vd = np.array([0.35 * math.cos(0.7 * t), 0.4 * math.cos(0.5 * t), 0.27 * math.cos(0.9 * t)])
-    eul = np.array(
-        [0.1 * math.sin(0.6 * t), -0.08 + 0.05 * math.sin(0.4 * t), 0.3 + 0.2 * math.sin(0.2 * t)]
-    )
-    eul_d = np.array([0.06 * math.cos(0.6 * t), 0.02 * math.cos(0.4 * t), 0.04 * math.cos(0.2 * t)])
-    return v, vd, eul, eul_d
-
-
-def _E(eul: np.ndarray) -> np.ndarray:
-    f, t, p = eul
-    sf, cf, st, ct, sp, cp = (
-        math.sin(f), math.cos(f), math.sin(t), math.cos(t), math.sin(p), math.cos(p)
-    )  # fmt: skip
-    return np.array(
-        [
-            [ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-            [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-            [-st, sf * ct, cf * ct],
-        ]
-    )
-
-
-Fault = Callable[[float, np.ndarray], np.ndarray]
-
-
-def flight(
-    duration_s: float,
-    seed: int = 1,
-    fault: Fault | None = None,
-    accel_bias_step: tuple[float, np.ndarray] | None = None,
-) -> Iterator[Sample]:
-    """Samples in time order (integer µs clock so that rates interleave exactly).
-
-    ``accel_bias_step`` = (t, Δb): the accelerometer's body-frame bias steps by Δb at t.
-    """
-    rng = np.random.default_rng(seed)
-    sig_f = 4e-3 * math.sqrt(250)
-    for k in range(int(duration_s * 1000) + 1):  # 1 kHz grid of ms ticks
-        t = k / 1000.0
-        v, vd, eul, eul_d = _truth(t)
-        E = _E(eul)
-        if k % 4 == 0:  # IMU 250 Hz
-            f = E.T @ (vd - np.array([0, 0, G])) + BIAS_BODY + rng.normal(0, sig_f, 3)
-            if accel_bias_step is not None and t >= accel_bias_step[0]:
-                f = f + accel_bias_step[1]
-            fi, th = eul[0], eul[1]
-            Winv = np.array(
-                [
-                    [1, 0, -math.sin(th)],
-                    [0, math.cos(fi), math.sin(fi) * math.cos(th)],
-                    [0, -math.sin(fi), math.cos(fi) * math.cos(th)],
-                ]
-            )
-            w = Winv @ eul_d
-            yield ImuSample(1, t, tuple(f), tuple(w), ImuSource.HIGHRES_IMU)  # type: ignore[arg-type]
-        if k % 10 == 0:  # ATTITUDE 100 Hz
-            e = eul + rng.normal(0, 0.005, 3)
-            yield AttitudeSample(1, t, tuple(e), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
-        if k % 33 == 0:  # LOCAL_POSITION_NED ~30 Hz
-            y = v + rng.normal(0, 0.05, 3)
-            if fault is not None:
-                y = fault(t, y)
-            yield VelocitySample(1, t, (0.0, 0.0, 0.0), tuple(y))  # type: ignore[arg-type]
-        if k % 20 == 0:  # truth 50 Hz
-            yield TruthSample(1, t, tuple(eul), tuple(v))  # type: ignore[arg-type]
+from glmav_testkit.synthetic_flight import FAULTS, flight, freeze, truth
 
 
 def run(
@@ -133,40 +58,11 @@ def _active(recs: list[Record]) -> list[VelocityRecord]:
     return [r for r in recs if isinstance(r, VelocityRecord) and r.config == "active"]
 
 
-def _noise(j: int, t0: float, rng: np.random.Generator) -> Fault:
-    """A noise burst of sigma 0.5 m/s on axis j from t0."""
-    return lambda t, y: y + ((np.arange(3) == j) * rng.normal(0, 0.5, 3) if t >= t0 else 0.0)
-
-
-FAULTS: dict[str, Callable[[int, float], Fault]] = {
-    "dropout": lambda j, t0: lambda t, y: np.where((np.arange(3) == j) & (t >= t0), np.nan, y),
-    # 0.5 m/s (the corpus's smaller bias): the bias test's threshold is 5 s, s >= 0.05 m/s
-    # here (the measurement's σ), so 0.25-0.3 m/s: a 0.3 m/s step would sit at the edge
-    "bias": lambda j, t0: lambda t, y: y + (0.5 * (np.arange(3) == j) if t >= t0 else 0.0),
-    "noise": lambda j, t0: _noise(j, t0, np.random.default_rng(7)),
-}
-
-
-def _freeze(j: int, t0: float) -> Fault:
-    held: list[float] = []
-
-    def f(t: float, y: np.ndarray) -> np.ndarray:
-        if t < t0:
-            return y
-        if not held:
-            held.append(float(y[j]))
-        y = y.copy()
-        y[j] = held[0]
-        return y
-
-    return f
-
-
 @pytest.mark.parametrize("kind", ["dropout", "freeze", "bias", "noise"])
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_each_fault_isolated_switched_without_jump(kind: str, axis: int) -> None:
     t0 = 6.0  # after the FDI warm-up (vetting delay 0.6 s + bias fit 1.5 s)
-    fault = _freeze(axis, t0) if kind == "freeze" else FAULTS[kind](axis, t0)
+    fault = freeze(axis, t0) if kind == "freeze" else FAULTS[kind](axis, t0)
     est, recs = run(flight(11.5, seed=3 + axis, fault=fault))
     assert len(est.faults) >= 1, est.counters
     ev = est.faults[0]
@@ -184,7 +80,7 @@ def test_each_fault_isolated_switched_without_jump(kind: str, axis: int) -> None
     # the uncertainty the record reports (sigma grows with the bias uncertainty x time)
     t_check = round(sw.t_boot_s + 5.0, 3)
     rec = next(r for r in _active(recs) if r.t_boot_s >= t_check)
-    v_true = _truth(rec.t_boot_s)[0]
+    v_true = truth(rec.t_boot_s)[0]
     assert rec.sigma_lost_mps is not None
     assert abs(rec.v_ned_mps[axis] - v_true[axis]) <= 3.0 * rec.sigma_lost_mps
 
@@ -207,7 +103,7 @@ def test_one_outlier_does_not_switch(spike_mps: float) -> None:
     # gated: the active estimate never moves by the outlier (30 Hz samples, gamma 12:
     # an ungated 1 m/s sample would move `full` by ~0.3 m/s)
     err = [
-        abs(r.v_ned_mps[0] - _truth(r.t_boot_s)[0][0])
+        abs(r.v_ned_mps[0] - truth(r.t_boot_s)[0][0])
         for r in _active(recs)
         if 4.9 < r.t_boot_s < 5.5
     ]
@@ -233,8 +129,8 @@ def test_recovery_after_a_long_fault_is_not_taken_for_a_bias() -> None:
     ~0.6 m/s. The recovered axis must be re-anchored on the measurement, not compared with
     the drifted prediction (which isolated it again as a 0.6 m/s 'bias' 0.5 s later and
     switched with a 0.7 m/s jump)."""
-    freeze = _freeze(0, 6.0)
-    fault = lambda t, y: freeze(t, y) if t < 14.0 else y  # noqa: E731
+    frozen = freeze(0, 6.0)
+    fault = lambda t, y: frozen(t, y) if t < 14.0 else y  # noqa: E731
     step = (6.0, np.array([0.08, 0.0, 0.0]))
     est, recs = run(flight(20.0, seed=4, fault=fault, accel_bias_step=step))
     assert [(f.axis, f.kind) for f in est.faults] == [("n", "freeze")]
@@ -246,12 +142,12 @@ def test_recovery_after_a_long_fault_is_not_taken_for_a_bias() -> None:
     # the drift was real (else this test proves nothing): the dead-reckoned n was off by
     # more than 3x the bias threshold (0.18 m/s) just before the switch back
     before = [r for r in _active(recs) if back.t_boot_s - 0.1 <= r.t_boot_s < back.t_boot_s]
-    drift = max(abs(r.v_ned_mps[0] - _truth(r.t_boot_s)[0][0]) for r in before)
+    drift = max(abs(r.v_ned_mps[0] - truth(r.t_boot_s)[0][0]) for r in before)
     assert drift > 0.5, drift
     # back on `full`, the error decays at gamma_full = 12 1/s: after 1 s it is e^-12 of the
     # drift plus the healthy error (~0.02 m/s, 3 sigma 0.07)
     after = [r for r in _active(recs) if r.t_boot_s >= back.t_boot_s + 1.0]
-    assert max(abs(r.v_ned_mps[0] - _truth(r.t_boot_s)[0][0]) for r in after) < 0.1
+    assert max(abs(r.v_ned_mps[0] - truth(r.t_boot_s)[0][0]) for r in after) < 0.1
 
 
 def _with_imu_shock(samples: Iterator[Sample], t_s: float, f_mps2: float) -> Iterator[Sample]:
