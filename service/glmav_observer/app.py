@@ -19,13 +19,14 @@ In-process API (used by the commands, the demo, the benchmarks and the tests):
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import math
 import select
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
@@ -829,6 +830,26 @@ def serve(
     stop = stop_event if stop_event is not None else threading.Event()
     opened: dict[str, Link] = {}
     service = service if service is not None else Service(config, sinks)
+    with stop_on_signals(stop):
+        try:
+            for conn in links:
+                opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
+                logger.info("link open", extra={"link": conn})
+            if ready is not None:
+                ready.set()
+            service.run(opened, stop)
+        finally:
+            for lk in opened.values():
+                lk.close()
+            service.close()
+    return service.summary()
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """Inside: SIGINT and SIGTERM set ``stop`` (logged) instead of interrupting; the
+    previous handlers come back on leaving. Only in the main thread (Python delivers
+    signals there); elsewhere a no-op."""
     previous: dict[signal.Signals, Any] = {}
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -839,19 +860,10 @@ def serve(
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
     try:
-        for conn in links:
-            opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
-            logger.info("link open", extra={"link": conn})
-        if ready is not None:
-            ready.set()
-        service.run(opened, stop)
+        yield
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
-        for lk in opened.values():
-            lk.close()
-        service.close()
-    return service.summary()
 
 
 def rmse_table(summary: ServiceSummary, sysid: int) -> list[tuple[str, float, float, float]]:

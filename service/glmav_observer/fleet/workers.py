@@ -51,10 +51,15 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
-from glmav_observer.app import RATE_CHECK_PERIOD_S, Service, ServiceSummary, open_sinks
+from glmav_observer.app import (
+    RATE_CHECK_PERIOD_S,
+    Service,
+    ServiceSummary,
+    open_sinks,
+    stop_on_signals,
+)
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.ingest.links import Link
@@ -611,30 +616,20 @@ def serve_sharded(
 ) -> ShardedSummary:
     """Start the workers, open ``links``, route until SIGINT/SIGTERM (or the event)."""
     stop = stop_event if stop_event is not None else threading.Event()
-    previous: dict[signal.Signals, Any] = {}
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        logger.info("stopping", extra={"signal": signal.Signals(signum).name})
-        stop.set()
-
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, on_signal)
     opened: dict[str, Link] = {}
     server: ShardedServer | None = None
-    try:
-        server = ShardedServer(specs)
-        config = specs[0].config
-        for conn in links:
-            opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
-            logger.info("link open", extra={"link": conn, "workers": len(specs)})
-        server.run(opened, stop)
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for lk in opened.values():
-            lk.close()
-        result = server.close() if server is not None else None
+    with stop_on_signals(stop):
+        try:
+            server = ShardedServer(specs)
+            config = specs[0].config
+            for conn in links:
+                opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
+                logger.info("link open", extra={"link": conn, "workers": len(specs)})
+            server.run(opened, stop)
+        finally:
+            for lk in opened.values():
+                lk.close()
+            result = server.close() if server is not None else None
     assert result is not None
     for lk in opened.values():
         for k, v in lk.counters.items():
