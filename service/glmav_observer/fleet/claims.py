@@ -24,8 +24,8 @@ process dies and its TCP connections close, after the session lease otherwise), 
 others claim its vehicles at their next turn. The new owner continues that vehicle's
 estimation from the last state the previous owner published: at every turn each
 claiming service queries ``<prefix>/*/state`` (the owners' state queryables, answered
-from other processes only) and keeps, per vehicle it hears but does not own, the newest
-reply (:mod:`glmav_observer.fleet.handover`: the last estimate of every configuration,
+from other processes only) and keeps, per vehicle it hears but does not own, the
+claim holder's reply (:mod:`glmav_observer.fleet.handover`: the last estimate of every configuration,
 the active configuration, isolated faults, the reference fit). On the claim, the
 vehicle's :class:`~glmav_observer.estimation.vehicle.VehicleEstimator` is seeded with it
 (:meth:`~glmav_observer.estimation.vehicle.VehicleEstimator.seed`: applied at the first
