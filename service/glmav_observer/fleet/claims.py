@@ -24,8 +24,8 @@ process dies and its TCP connections close, after the session lease otherwise), 
 others claim its vehicles at their next turn. The new owner continues that vehicle's
 estimation from the last state the previous owner published: at every turn each
 claiming service queries ``<prefix>/*/state`` (the owners' state queryables, answered
-from other processes only) and keeps, per vehicle it hears but does not own, the newest
-reply (:mod:`glmav_observer.fleet.handover`: the last estimate of every configuration,
+from other processes only) and keeps, per vehicle it hears but does not own, the
+claim holder's reply (:mod:`glmav_observer.fleet.handover`: the last estimate of every configuration,
 the active configuration, isolated faults, the reference fit). On the claim, the
 vehicle's :class:`~glmav_observer.estimation.vehicle.VehicleEstimator` is seeded with it
 (:meth:`~glmav_observer.estimation.vehicle.VehicleEstimator.seed`: applied at the first
@@ -120,6 +120,7 @@ class ClaimManager:
         #: newest state queryable reply per vehicle not owned: sysid -> (monotonic s, payload)
         self._last_state: dict[int, tuple[float, dict[str, Any]]] = {}
         self.state_replies = 0
+        self.stale_state_replies = 0
         self.events: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._member_token = session.liveliness().declare_token(members_key(prefix, self.zid))
@@ -178,12 +179,17 @@ class ClaimManager:
         if sysid in self.owned:
             return
         t = state_time_s(state)
+        replier = getattr(reply, "replier_id", None)  # (unstable in zenoh 1.x: may be None)
         with self._lock:
             self.state_replies += 1
+            # several services may answer for one vehicle: one that released it (a double
+            # claim settled) keeps answering with its last records; only the claim
+            # holder's reply counts, or without the replier's id the newest estimate
+            if replier is not None and str(replier.zid) not in self._claimants.get(sysid, ()):
+                self.stale_state_replies += 1
+                return
             old = self._last_state.get(sysid)
-            # several services may answer for one vehicle (one that released it keeps its
-            # last records): the newest estimate is the owner's
-            if old is None or not t <= state_time_s(old[1]):
+            if old is None or replier is not None or not t <= state_time_s(old[1]):
                 self._last_state[sysid] = (time.monotonic(), state)
 
     def _query_states(self, owned: set[int]) -> None:
@@ -197,7 +203,8 @@ class ClaimManager:
                 self._on_state_reply,
                 consolidation=zenoh.ConsolidationMode.NONE,  # every owner's reply
                 allowed_destination=zenoh.Locality.REMOTE,  # not this process's own
-                timeout=self.period_s,
+                # replies are kept as they arrive; a loaded owner may answer late
+                timeout=max(2.0, self.period_s),
             )
         except zenoh.ZError as exc:
             logger.debug("state query failed: %s", exc)

@@ -33,7 +33,9 @@ pytestmark = pytest.mark.timeout(240)
 
 VEHICLES = 6
 SERVICES = ("svc-a", "svc-b", "svc-c")
-FLIGHT_S = 15.0
+#: long enough for ≥ 5 s of flight after the kill when the services read their links
+#: seconds late (a loaded machine: the kill waits for the victim's isolation to show)
+FLIGHT_S = 18.0
 #: the measured east velocity's bias (m/s) from T_FAULT_S (s of the flight) to its end
 FAULT_MPS = 1.0
 #: after the FDI has armed on every vehicle: the services claim ~1.5 s into the flight
@@ -201,6 +203,7 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
         }
         time.sleep(0.5)  # steady state before the kill (the flight goes on)
         t_kill = time.monotonic()
+        print(f"kill at t_boot {[watch.health[s][-1][2]['t_boot_s'] for s in orphans]} s")
         services[victim].send_signal(signal.SIGKILL)
         services[victim].wait(timeout=10)
         assert fleet.wait(timeout=FLIGHT_S + 60) == 0
