@@ -189,6 +189,18 @@ def sigma_dead_reckoning_mps(cfg: FdiConfig, age_s: float) -> float:
     )
 
 
+def dead_reckoning_age_s(cfg: FdiConfig, sigma_mps: float) -> float:
+    """The inverse of :func:`sigma_dead_reckoning_mps`: the age at which the dead-reckoned
+    σ reaches ``sigma_mps`` (0 at or below σ0): σ_b² t² + q t + σ0² − σ² = 0 solved for t."""
+    a, b = cfg.sigma_bias_mps2**2, cfg.accel_noise_density**2
+    c = cfg.sigma_handover_mps**2 - sigma_mps * sigma_mps
+    if c >= 0.0:
+        return 0.0
+    if a == 0.0:
+        return -c / b if b > 0.0 else 0.0
+    return (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+
+
 @dataclass(frozen=True, slots=True)
 class AxisVerdict:
     """What the FDI says about one axis after one measurement."""

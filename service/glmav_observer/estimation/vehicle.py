@@ -69,6 +69,7 @@ from glmav_observer.estimation.fdi import (
     FdiConfig,
     Integrals,
     Reference,
+    dead_reckoning_age_s,
     sigma_dead_reckoning_mps,
 )
 from glmav_observer.estimation.observer import G_MPS2, EForm, gamma_full_optimal
@@ -317,15 +318,10 @@ class VehicleEstimator:
         self.t_bank_s = self.t_first_s = self._next_health_s = t
 
         def t0_of(sigma: float | None, t_default: float) -> float:
-            """The start of a dead reckoning whose σ (:meth:`_sigma_lost`) was ``sigma``
-            at the seed's time: σ² = σ0² + (σ_b τ)² + q τ solved for τ."""
-            f = cfg.fdi
+            """The start of a dead reckoning whose σ was ``sigma`` at the seed's time."""
             if sigma is None or not math.isfinite(sigma):
                 return t_default
-            a, b = f.sigma_bias_mps2**2, f.accel_noise_density**2
-            c = f.sigma_handover_mps**2 - sigma * sigma
-            tau = (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a) if c < 0.0 else 0.0
-            return seed.t_boot_s - tau
+            return seed.t_boot_s - dead_reckoning_age_s(cfg.fdi, sigma)
 
         self._t_seed_s = [t0_of(seed.sigma_lost_mps.get(c), t) for c in CONFIGS]
         fit = seed.reference_fit

@@ -18,6 +18,7 @@ from glmav_observer.estimation.fdi import (
     FdiConfig,
     ReferenceFit,
     classify_change,
+    dead_reckoning_age_s,
     sigma_dead_reckoning_mps,
 )
 from glmav_observer.records import FaultEvent
@@ -196,3 +197,13 @@ def test_dead_reckoning_sigma_grows_as_documented() -> None:
     assert sigma_dead_reckoning_mps(cfg, 0.0) == pytest.approx(0.03, rel=1e-12)
     assert sigma_dead_reckoning_mps(cfg, -1.0) == pytest.approx(0.03, rel=1e-12)  # clamped
     assert sigma_dead_reckoning_mps(cfg, 10.0) == pytest.approx(math.sqrt(0.09106), rel=1e-12)
+
+
+def test_dead_reckoning_age_is_the_inverse_of_its_sigma() -> None:
+    """A takeover restarts a dead reckoning from the σ the old owner published: the age
+    found from it gives that σ back (to float round-off), 0 at or below σ0."""
+    cfg = FdiConfig()
+    for age_s in (0.0, 0.5, 3.0, 10.0, 60.0):
+        sigma = sigma_dead_reckoning_mps(cfg, age_s)
+        assert dead_reckoning_age_s(cfg, sigma) == pytest.approx(age_s, abs=1e-9)
+    assert dead_reckoning_age_s(cfg, 0.01) == 0.0
