@@ -51,7 +51,7 @@ from typing import TYPE_CHECKING, Any
 
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
-from glmav_observer.estimation.vehicle import EstimatorSeed
+from glmav_observer.estimation.seed import EstimatorSeed
 from glmav_observer.fleet.handover import HandoverError, seed_from_state, state_time_s
 from glmav_observer.publish.sink import Sink
 

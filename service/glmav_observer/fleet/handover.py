@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from glmav_observer.estimation.fdi import FaultKind
-from glmav_observer.estimation.vehicle import EstimatorSeed
+from glmav_observer.estimation.seed import EstimatorSeed
 from glmav_observer.records import CONFIGS, NED_AXES, FaultEvent, ReferenceFitSummary
 
 #: The fault kinds that isolate a velocity axis (an ``accel_bias`` event isolates none).

@@ -24,7 +24,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from glmav_observer.estimation.vehicle import SEED_MAX_AGE_S
+from glmav_observer.estimation.seed import SEED_MAX_AGE_S
 from glmav_observer.fleet.claims import CLAIM_PERIOD_S
 from glmav_testkit.fleet_helpers import OBS, SITL, record_fault_tlog, wait_bound_udp
 from glmav_testkit.zenoh_helpers import RouterProcess, client_config, client_session, wait_until

@@ -1,0 +1,110 @@
+"""One vehicle's held inputs (zero-order hold) and the IMU integrals the FDI builds on.
+
+Between two samples every input is held: the attitude (ATTITUDE), the specific force and
+gyro rates (IMU, after despiking) and the velocity measurement. Over each step of length
+dt the earth-frame acceleration a = E f + g e_d (V̇ = E Γ, equations.md) is integrated
+into
+
+- A = ∫ a dt (the dead reckoning of every axis; its history over ~2 ``LAG_WINDOW_S``
+  gives the lag regressor L, the mean acceleration over the last ``LAG_WINDOW_S``),
+- B = ∫ E dt (the accelerometer bias regressor, ``fdi.BiasFit``),
+- C = ∫ (−a_e, a_n, 0) dt (the heading-error regressor, fdi module docstring).
+
+Held measurement. A held y lags the truth by about its age times |V̇|; with
+``propagate_held_measurement`` it is carried forward with the IMU instead,
+y(t) ≈ y(t_y) + (A(t) − A(t_y)) − (B(t) − B(t_y)) b̂ (docs/observer.md measures both).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+
+from glmav_observer.estimation.fdi import LAG_WINDOW_S, Integrals
+from glmav_observer.frames import rotate_flat
+
+Vec3 = tuple[float, float, float]
+
+
+class HeldInputs:
+    """The held samples and the integrals A, B, C of one vehicle (module docstring)."""
+
+    def __init__(self, g_mps2: float) -> None:
+        self.g_mps2 = g_mps2
+        self.euler_rad: Vec3 | None = None
+        self.omega_att_radps: Vec3 = (0.0, 0.0, 0.0)
+        self.omega_imu_radps: Vec3 | None = None
+        self.f_body_mps2: Vec3 | None = None
+        #: the held velocity measurement (NED, m/s; lag-compensated by the caller)
+        self.y_ned_mps: list[float] = [math.nan] * 3
+        self.a_int: list[float] = [0.0, 0.0, 0.0]
+        #: (t, A n, A e, A d) of the last ~2 LAG_WINDOW_S: the lag regressor L (fdi)
+        self._a_hist: collections.deque[tuple[float, float, float, float]] = collections.deque()
+        self._a_int_at_y: list[float] = [0.0, 0.0, 0.0]
+        self._b_int: list[float] = [0.0] * 9
+        self._b_int_at_y: list[float] = [0.0] * 9
+        self.c_int: list[float] = [0.0, 0.0, 0.0]
+
+    @property
+    def ready(self) -> bool:
+        """Attitude and specific force known: the bank can step."""
+        return self.euler_rad is not None and self.f_body_mps2 is not None
+
+    def omega_radps(self) -> Vec3:
+        """The body rates: the IMU's gyro once one came, else ATTITUDE's."""
+        return self.omega_imu_radps if self.omega_imu_radps is not None else self.omega_att_radps
+
+    def y_for_step(self, bias_body_mps2: Vec3, propagate: bool) -> list[float]:
+        """The measurement the bank is corrected with over the next step: the held y, or
+        y(t_y) + ΔA − ΔB b̂ with ``propagate`` (module docstring)."""
+        y = self.y_ned_mps
+        if not propagate:
+            return y
+        b = bias_body_mps2
+        dB = [self._b_int[k] - self._b_int_at_y[k] for k in range(9)]
+        return [
+            y[i]
+            + (self.a_int[i] - self._a_int_at_y[i])
+            - (dB[3 * i] * b[0] + dB[3 * i + 1] * b[1] + dB[3 * i + 2] * b[2])
+            for i in range(3)
+        ]
+
+    def integrate(self, t: float, dt: float, e_flat: list[float]) -> None:
+        """Advance A, its history, C and B over [t − dt, t] with E = ``e_flat`` (row-major)
+        held."""
+        assert self.f_body_mps2 is not None
+        a = rotate_flat(e_flat, self.f_body_mps2)  # E Γ = E f + g e_d (V̇ = E Γ)
+        a[2] += self.g_mps2
+        ai = self.a_int
+        for i in range(3):
+            ai[i] += a[i] * dt
+        hist = self._a_hist
+        hist.append((t, ai[0], ai[1], ai[2]))
+        while len(hist) > 2 and hist[1][0] <= t - LAG_WINDOW_S:
+            hist.popleft()
+        # C = ∫ (−a_e, a_n, 0) dt: the heading-error regressor (fdi module docstring)
+        self.c_int[0] -= a[1] * dt
+        self.c_int[1] += a[0] * dt
+        bi = self._b_int
+        for k in range(9):
+            bi[k] += e_flat[k] * dt  # B = ∫ E dt (fdi.BiasFit)
+
+    def hold_measurement(self, y_ned_mps: list[float]) -> None:
+        """Hold a new measurement from now on (the propagation restarts from here)."""
+        self.y_ned_mps = y_ned_mps
+        self._a_int_at_y = list(self.a_int)
+        self._b_int_at_y = list(self._b_int)
+
+    def ints(self) -> Integrals:
+        """(B, C, L): the integrals the FDI's regressors are built from; L the mean
+        earth-frame acceleration over the last LAG_WINDOW_S (A's difference)."""
+        c = self.c_int
+        hist = self._a_hist
+        ai = self.a_int
+        l_now = (0.0, 0.0, 0.0)
+        if len(hist) >= 2:
+            t0, *a0 = hist[0]
+            span = hist[-1][0] - t0
+            if span > 0.0:
+                l_now = ((ai[0] - a0[0]) / span, (ai[1] - a0[1]) / span, (ai[2] - a0[2]) / span)
+        return tuple(self._b_int), (c[0], c[1], c[2]), l_now
