@@ -286,6 +286,23 @@ class ObserverBank:
         """(4, 3) NED velocity estimates E x̂ under the attitude of the last step (a copy)."""
         return np.array(self._x) @ self.e_last.T
 
+    def e_last_flat(self) -> list[float]:
+        """:attr:`e_last` as a row-major list of 9 floats (the same values, no array)."""
+        e = self._E_last
+        return list(e) if isinstance(e, list) else e.ravel().tolist()
+
+    def estimates_lists(self) -> tuple[list[list[float]], list[list[float]]]:
+        """(body, NED) estimates as lists of 4 lists of 3 floats: :attr:`x_hat_body_mps`
+        and :meth:`x_hat_ned_mps` without numpy, for the per-step records (the NED one
+        summed in matmul's order; test_bank asserts both equal the arrays)."""
+        body = [[r[0], r[1], r[2]] for r in self._x]
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = self.e_last_flat()
+        ned = [
+            [e00 * u + e01 * v + e02 * w, e10 * u + e11 * v + e12 * w, e20 * u + e21 * v + e22 * w]
+            for u, v, w in body
+        ]
+        return body, ned
+
     def set_state_body(self, config: str, v_body_mps: ArrayLike) -> None:
         """Overwrite one configuration's body-frame state (m/s)."""
         i = config_index(config)

@@ -218,7 +218,7 @@ class VehicleEstimator:
         f_bank = f if b_obs is None else (f[0] - b_obs[0], f[1] - b_obs[1], f[2] - b_obs[2])
         mask = None if all(self._use) else self._use
         self.bank.step(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
-        inputs.integrate(t, dt, self.bank.e_last.ravel().tolist())
+        inputs.integrate(t, dt, self.bank.e_last_flat())
         self.t_bank_s = t
 
     def _start_bank(self, t: float, y_ned_mps: Vec3 | list[float]) -> None:
@@ -444,8 +444,7 @@ class VehicleEstimator:
         assert t is not None
         sel = self.sel
         c_int = self.inputs.c_int
-        body = self.bank.x_hat_body_mps.tolist()
-        ned_l = self.bank.x_hat_ned_mps().tolist()
+        body, ned_l = self.bank.estimates_lists()
         fdi_cfg = self.cfg.fdi
         sigma = [
             None

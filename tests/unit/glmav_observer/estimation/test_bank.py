@@ -249,3 +249,19 @@ def test_default_full_gamma_beats_the_papers_gamma_under_design_noise() -> None:
     assert abs(rms[12.0] / predicted - 1) < 0.15
     assert rms[12.0] < 0.8 * rms[3.0]  # observed 0.026 vs 0.067 (bias-dominated)
     assert rms[12.0] < 0.8 * rms[90.0]  # observed 0.026 vs 0.041 (noise-dominated)
+
+
+def test_plain_float_estimates_equal_the_arrays() -> None:
+    """bank.estimates_lists (the records' per-step path) == x_hat_body_mps exactly and
+    x_hat_ned_mps to rounding: the same three products summed, numpy's matmul may pair
+    them differently (one ulp: |v| ≤ 20 m/s here, 2⁻⁵² · 20 · 3 ≈ 1.3e-14)."""
+    rng = np.random.default_rng(8)
+    bank = ObserverBank()
+    bank.reset(rng.normal(scale=5.0, size=(4, 3)))
+    for _ in range(50):
+        bank.step(0.004, rng.uniform(-3, 3, 3), rng.normal(size=3), rng.normal(size=3),
+                  rng.normal(scale=5.0, size=3))  # fmt: skip
+        body, ned = bank.estimates_lists()
+        np.testing.assert_array_equal(np.array(body), bank.x_hat_body_mps)
+        np.testing.assert_allclose(np.array(ned), bank.x_hat_ned_mps(), rtol=0, atol=1.3e-14)
+        assert bank.e_last_flat() == bank.e_last.ravel().tolist()
