@@ -59,11 +59,14 @@ def _vec(v: Vec3 | None) -> list[float | None] | None:
 class VelocityRecord:
     """One configuration's estimate at one vehicle time (key ``glmav/<sysid>/velocity/<config>``).
 
-    ``config`` is one of ``CONFIGS`` or ``"active"``; for ``"active"``, ``source_config``
-    names the configuration selected. ``lost_axis`` is the NED axis not measured (dead
-    reckoned) and ``sigma_lost_mps`` its 1-sigma uncertainty, growing with time since
-    hand-over (None when nothing is lost). ``health`` is ``"ok"``, ``"dead_reckoning"``
-    or ``"degraded"``.
+    ``config`` is one of ``CONFIGS``, ``"active"`` or ``"aided"``; for ``"active"``,
+    ``source_config`` names the configuration selected. ``lost_axis`` is the NED axis not
+    measured (dead reckoned) and ``sigma_lost_mps`` its 1-sigma uncertainty, growing with
+    time since hand-over (None when nothing is lost). ``health`` is ``"ok"``,
+    ``"dead_reckoning"`` or ``"degraded"``. ``"aided"`` is published only while one axis is
+    lost: the hand-over configuration (``source_config``) with its lost axis aided by the
+    learnt drag model; its ``health`` is ``"aided"`` while pseudo-measurements are accepted,
+    ``"dead_reckoning"`` otherwise, and ``sigma_lost_mps`` the aided axis's 1σ.
     """
 
     sysid: int

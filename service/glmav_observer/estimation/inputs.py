@@ -44,6 +44,10 @@ class HeldInputs:
         self._b_int: list[float] = [0.0] * 9
         self._b_int_at_y: list[float] = [0.0] * 9
         self.c_int: list[float] = [0.0, 0.0, 0.0]
+        #: ∫ f dt (body) and ∫ dt, and their values at the held measurement: the mean
+        #: specific force over a measurement interval (the drag model's input)
+        self._f_int: list[float] = [0.0, 0.0, 0.0, 0.0]
+        self._f_int_at_y: list[float] = [0.0, 0.0, 0.0, 0.0]
 
     @property
     def ready(self) -> bool:
@@ -88,12 +92,28 @@ class HeldInputs:
         bi = self._b_int
         for k in range(9):
             bi[k] += e_flat[k] * dt  # B = ∫ E dt (fdi.BiasFit)
+        f = self.f_body_mps2
+        fi = self._f_int
+        fi[0] += f[0] * dt
+        fi[1] += f[1] * dt
+        fi[2] += f[2] * dt
+        fi[3] += dt
 
     def hold_measurement(self, y_ned_mps: list[float]) -> None:
         """Hold a new measurement from now on (the propagation restarts from here)."""
         self.y_ned_mps = y_ned_mps
         self._a_int_at_y = list(self.a_int)
         self._b_int_at_y = list(self._b_int)
+        self._f_int_at_y = list(self._f_int)
+
+    def f_mean_since_measurement(self) -> Vec3 | None:
+        """The mean body-frame specific force (m/s²) since the held measurement; None
+        before any step since it."""
+        fi, f0 = self._f_int, self._f_int_at_y
+        span = fi[3] - f0[3]
+        if span <= 0.0:
+            return None
+        return ((fi[0] - f0[0]) / span, (fi[1] - f0[1]) / span, (fi[2] - f0[2]) / span)
 
     def ints(self) -> Integrals:
         """(B, C, L): the integrals the FDI's regressors are built from; L the mean

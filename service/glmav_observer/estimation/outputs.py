@@ -99,6 +99,28 @@ class RecordBuilder:
             )
         )  # fmt: skip
 
+    def aided(  # noqa: PLR0917 -- the fields of the aided record
+        self,
+        t: float,
+        e_flat: list[float],
+        v_ned_mps: list[float],
+        source_config: str,
+        sigma_lost_mps: float,
+        aided: bool,
+        out: list[Record],
+    ) -> None:
+        """The ``aided`` estimate while an axis is lost (:mod:`~glmav_observer.estimation.
+        aiding`): ``health`` says whether its lost axis is ``aided`` now or dead-reckoned."""
+        v_body = rotate_t_flat(e_flat, v_ned_mps)
+        out.append(
+            VelocityRecord(
+                self.sysid, "aided", t, (v_body[0], v_body[1], v_body[2]),
+                (v_ned_mps[0], v_ned_mps[1], v_ned_mps[2]), LOST_AXIS_OF_CONFIG[source_config],
+                "aided" if aided else "dead_reckoning", self._seqn("aided"), source_config,
+                sigma_lost_mps,
+            )
+        )  # fmt: skip
+
     def health_due(self, t: float) -> bool:
         """True (once per period) when a health record is due at ``t``."""
         if self.next_health_s is None or t < self.next_health_s:

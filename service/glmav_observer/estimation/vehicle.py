@@ -14,6 +14,7 @@ Each part has one job, in its own module:
 ``gain``            γ of ``full``: adapted to the noise, lowered after a recovery
 ``outputs``         the records, their sequence numbers and the health pacing
 ``seed``            the state a taken-over vehicle continues from
+``aiding``          the lost axis aided by the learnt drag model (the ``aided`` estimate)
 ==================  ===================================================================
 
 The step from a sample (:meth:`VehicleEstimator.on_sample`):
@@ -45,6 +46,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from glmav_observer.configurations import CONFIG_WITHOUT_AXIS, CONFIGS, LOST_AXIS_OF_CONFIG
+from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
 from glmav_observer.estimation.fdi import (
@@ -94,6 +96,8 @@ class EstimatorConfig:
     adapt_gamma_full: bool = True
     gamma_full_min: float = 4.0
     gamma_full_max: float = 20.0
+    #: learn the drag model while healthy and publish the ``aided`` estimate of a lost axis
+    aero_aiding: bool = True
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
@@ -119,6 +123,8 @@ class VehicleEstimator:
         self.faults: list[FaultEvent] = []
         self.switches: list[SwitchEvent] = []
         self.out = RecordBuilder(sysid, config.health_rate_hz)
+        #: kept across restarts: what the vehicle's drag is does not change with a gap
+        self.aiding = LostAxisAiding(config.fdi.sigma_handover_mps) if config.aero_aiding else None
         self._seed: EstimatorSeed | None = None
         #: vehicle s between a seed's state and the sample it was applied at (None: none)
         self.seed_age_s: float | None = None
@@ -138,6 +144,8 @@ class VehicleEstimator:
         self.sel = ActiveSelection(cfg.compensate_accel_bias, cfg.handover_contamination_mps)
         self.gain = FullGain(cfg.adapt_gamma_full, cfg.gamma_full_min, cfg.gamma_full_max)
         self.out.next_health_s = None
+        if self.aiding is not None:
+            self.aiding.stop()
         self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
         self._n_accel_changes = 0
         self.t_bank_s: float | None = None
@@ -219,6 +227,8 @@ class VehicleEstimator:
         mask = None if all(self._use) else self._use
         self.bank.step(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
         inputs.integrate(t, dt, self.bank.e_last_flat())
+        if self.aiding is not None:
+            self.aiding.propagate(dt)
         self.t_bank_s = t
 
     def _start_bank(self, t: float, y_ned_mps: Vec3 | list[float]) -> None:
@@ -327,6 +337,8 @@ class VehicleEstimator:
                 active, faulty[0], t_handover, self.inputs.ints(),
                 None if ref is None else ref.held(),
             )  # fmt: skip
+            if self.aiding is not None:
+                self.aiding.start(t, faulty[0])
         self.counters["estimator_seeded"] += 1
         self.seed_outcome = "continued"
 
@@ -346,15 +358,34 @@ class VehicleEstimator:
         ints = inputs.ints()
         verdicts = self.fdi.update(t, s.v_ned_mps, inputs.a_int, ints, imu_hz)
         self.streams.measurement(t)
+        f_mean = inputs.f_mean_since_measurement()
         inputs.hold_measurement(self._lag_compensated(s.v_ned_mps, ints[2]))
         self._use = [v.use for v in verdicts]
         self._last_residual = [v.residual_mps for v in verdicts]
         self._last_ratio = [v.test_ratio for v in verdicts]
         self._after_fdi(t, faulty_before)
+        if self.aiding is not None and f_mean is not None:
+            self._aid(t, f_mean, s.v_ned_mps)
         if self.gain.on_measurement(
             self.bank, self.fdi, self.despike, imu_hz, self.streams.y_interval_s
         ):
             self.counters["gamma_full_updates"] += 1
+
+    def _aid(self, t: float, f_mean: Vec3, v_meas: Vec3) -> None:
+        """The drag model learns from a measurement while every axis is healthy and armed;
+        while an axis is lost, the aided offset is updated with it (:mod:`aiding`)."""
+        aiding = self.aiding
+        assert aiding is not None
+        e_flat = self.bank.e_last_flat()
+        if not self.fdi.faulty_axes():
+            if self.fdi.armed():
+                aiding.learn(t, f_mean, e_flat, v_meas)
+            return
+        j = aiding.lost_idx
+        if j is None or j != self.sel.lost_idx or len(self.fdi.faulty_axes()) != 1:
+            return  # (a second isolated axis would feed the model a faulty measurement)
+        _, ned_l = self.bank.estimates_lists()
+        aiding.update(f_mean, e_flat, v_meas, self.sel.active_ned(ned_l, self.inputs.c_int)[j])
 
     def _lag_compensated(self, y_ned_mps: Vec3, l_now: tuple[float, float, float]) -> list[float]:
         """The measurement moved to the present by the fit's *observed* lag d̂ (|d̂| > 2σ,
@@ -436,6 +467,11 @@ class VehicleEstimator:
             self.counters["handover_from_dead_reckoning"] += 1
         if wanted == "full" and lost_idx is None:
             self.gain.blend_after_recovery(t, self.bank)
+        if self.aiding is not None:
+            if lost_idx is None:
+                self.aiding.stop()
+            else:
+                self.aiding.start(t, lost_idx)
         self.switches.append(switch)
 
     # ------------------------------------------------------------------ records
@@ -460,6 +496,14 @@ class VehicleEstimator:
         a_ned = sel.active_ned(ned_l, c_int)
         n_faulty = len(self.fdi.faulty_axes())
         self.out.velocity(t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out)
+        aiding = self.aiding
+        j = sel.lost_idx
+        if aiding is not None and j is not None and aiding.lost_idx == j and n_faulty == 1:
+            v_j, sigma_j, aided = aiding.lost_axis(a_ned[j])
+            v_aided = [a_ned[0], a_ned[1], a_ned[2]]
+            v_aided[j] = v_j
+            e_flat = self.bank.e_last_flat()
+            self.out.aided(t, e_flat, v_aided, sel.config, sigma_j, aided, out)
         settled = sel.settle_jump(ned_l, c_int)
         if settled is not None:
             self.switches[-1] = settled

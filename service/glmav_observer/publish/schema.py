@@ -92,12 +92,12 @@ VELOCITY: Schema = _record(
     {
         "schema": {"const": VELOCITY_SCHEMA},
         "sysid": _SYSID,
-        "config": {"enum": [*CONFIGS, "active"]},
+        "config": {"enum": [*CONFIGS, "aided", "active"]},
         "t_boot_s": _TIME,
         "v_body_mps": _VEC3,
         "v_ned_mps": _VEC3,
         "lost_axis": {"enum": [*_AXES, None]},
-        "health": {"enum": ["ok", "dead_reckoning", "degraded"]},
+        "health": {"enum": ["ok", "dead_reckoning", "degraded", "aided"]},
         "seq": _SEQ,
         "source_config": {"enum": [*CONFIGS, None]},
         "sigma_lost_mps": {"type": ["number", "null"], "minimum": 0},
@@ -194,7 +194,7 @@ STATE: Schema = _object(
         "sysid": _SYSID,
         "velocity": {
             "type": "object",
-            "properties": {name: VELOCITY for name in [*CONFIGS, "active"]},
+            "properties": {name: VELOCITY for name in [*CONFIGS, "aided", "active"]},
             "additionalProperties": False,
         },
         "health": _nullable(HEALTH),

@@ -484,7 +484,9 @@ class ZenohSink:
             "service_id": self.service_id,
             "sysid": sysid,
             "velocity": {
-                name: slots[name].to_dict() for name in (*CONFIGS, "active") if name in slots
+                name: slots[name].to_dict()
+                for name in (*CONFIGS, "aided", "active")
+                if name in slots
             },
             "health": latest("health"),
             "measurement": latest("measurement"),
