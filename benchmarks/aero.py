@@ -227,8 +227,8 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
         t = float(fl.t_vel_s[k])
         i_a, i_b = i_edges[n], i_edges[n + 1]
         if i_b > i_a:
-            a = float(fl.a_ned_imu_mps2[i_a:i_b, axis].mean())
-            a -= float(fl.E_imu[i_a:i_b, axis, :].mean(axis=0) @ b_body)
+            a = fl.a_ned_imu_mps2[i_a:i_b].mean(axis=0)
+            a = a - fl.E_imu[i_a:i_b].mean(axis=0) @ b_body
             dr.propagate(t - t_prev, a)
             ai.propagate(t - t_prev, a)
         t_prev = t
@@ -236,7 +236,7 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
             fl.f_mean_body_mps2[k], fl.E_vel[k], fl.v_meas_ned_mps[k], axis
         )
         n_pm += pm is not None
-        ai.update(pm, model.broken)
+        ai.update(pm, v_meas_ned_mps=fl.v_meas_ned_mps[k], model_broken=model.broken)
         truth = float(np.interp(t, fl.t_truth_s, fl.v_truth_ned_mps[:, axis]))
         st = ai.state()
         ts.append(t - t0)
@@ -273,6 +273,8 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
         "nees": [float(x) for x in model.nees],
         "accel_bias_body_mps2": [float(x) for x in b_body],
         "stopped": ai.stopped,
+        "stop_reason": ai.stop_reason,
+        "meas_suspect_updates": ai.n_meas_suspect,
         "err10_dr_mps": at(10.0, edr),
         "err10_aided_mps": at(10.0, eai),
         "err60_dr_mps": at(HORIZON_S, edr),
