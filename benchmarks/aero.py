@@ -232,11 +232,8 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
             dr.propagate(t - t_prev, a)
             ai.propagate(t - t_prev, a)
         t_prev = t
-        pm = model.pseudo_measurement(
-            fl.f_mean_body_mps2[k], fl.E_vel[k], fl.v_meas_ned_mps[k], axis
-        )
-        n_pm += pm is not None
-        ai.update(pm, v_meas_ned_mps=fl.v_meas_ned_mps[k], model_broken=model.broken)
+        ai.update_from_model(model, fl.f_mean_body_mps2[k], fl.E_vel[k], fl.v_meas_ned_mps[k])
+        n_pm += ai.last_pm is not None
         truth = float(np.interp(t, fl.t_truth_s, fl.v_truth_ned_mps[:, axis]))
         st = ai.state()
         ts.append(t - t0)

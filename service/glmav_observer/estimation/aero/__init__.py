@@ -18,9 +18,9 @@ Use from the estimator (per vehicle)::
     axis = AidedAxis(L, v0_mps=v_meas[L], sigma0_mps=sigma_meas, t0_s=t_s)
     # every IMU sample: the earth-frame acceleration, all three axes (E Γ less the bias)
     axis.propagate(dt_s, a_ned_mps2)
-    # every velocity sample (v_meas: the NED measurement, its L entry ignored):
-    pm = model.pseudo_measurement(f_mean_body_mps2, E, v_meas, L)       # may be None
-    axis.update(pm, v_meas_ned_mps=v_meas, model_broken=model.broken)
+    # every velocity sample (f averaged over the interval, v_meas the NED measurement,
+    # its L entry ignored): checks the measured axes, makes and fuses the pseudo-measurement
+    axis.update_from_model(model, f_mean_body_mps2, E, v_meas)
     # report axis.state() -> AidedState(v_mps, sigma_mps, aided, why)
 
 Nothing else is needed: the model is not learnt while an axis is lost, and a new
