@@ -314,8 +314,10 @@ def run_flight(fl: Flight, *, d_forced: bool = False) -> list[dict[str, Any]]:
                 float(fl.t_vel_s[k]), fl.f_mean_body_mps2[k], fl.E_vel[k], fl.v_meas_ned_mps[k]
             )
             k += 1
-        snap = copy.deepcopy(model)
         for axis in range(3):
+            # a copy per case: a loss's pseudo-measurements update the model's two-row
+            # consistency record (DragModel.broken), which must not leak into the next case
+            snap = copy.deepcopy(model)
             cases.append(run_case(fl, snap, t_loss, axis) | {"variant": "default"})
         if d_forced:
             snap_d = copy.deepcopy(model)
