@@ -1,0 +1,360 @@
+"""The lost axis's one-state Kalman filter and the rules that keep it from being worse than
+dead reckoning (issue 13; the package docstring shows the calls).
+
+:class:`AidedAxis` starts at the hand-over from the last measured value and σ, is
+propagated at the IMU rate with the earth-frame acceleration (all three axes: the two
+measured ones feed rule 1), and updated at the measurement rate with the drag model's
+pseudo-measurement (:meth:`~glmav_observer.estimation.aero.model.DragModel.pseudo_measurement`)
+and the two measured axes. It carries the plain dead reckoning of the lost axis alongside
+(same propagation, never updated): every fall-back returns to it.
+
+Two rules decide when the pseudo-measurement is not fused (their reasons in
+:class:`AidedAxisConfig`):
+
+1. **The measured axes must be consistent with the IMU** (the pseudo-measurement is
+   computed from them: an error δ in a measured axis i moves the lost axis by
+   δ·r_j,i/r_j,L). Each measured axis is tracked by an IMU-propagated prediction pulled
+   towards the measurement with a 1 s time constant; a measurement whose innovation exceeds
+   5σ (σ² = σ_meas² + the IMU's drift over that time constant: 1.06 m/s with the
+   defaults) marks the measured axes *suspect*: the prediction then coasts on the IMU and
+   nothing is fused (the lost axis dead-reckons from where it is) until every innovation
+   is back inside the gate for 1 s; after 10 s of suspicion the prediction is
+   re-synchronised to the measurement (a step that lasts is a new level, or the FDI's
+   business).
+2. **The pseudo-measurements must agree with the dead reckoning** they correct (a wind
+   change, or a model used outside the data it learnt from: nothing measured reveals
+   either directly; measured on ArduPilot's quads, pseudo-measurement errors of 2-4 times
+   their σ during a loss). z² = (z − v_DR)²/(σ_z² + P_DR) is averaged
+   over a 2 s exponential window of updates; above 1 the model is stale and the axis falls
+   back to the dead reckoning from the hand-over for the rest of the loss. After a gap of
+   2 s without pseudo-measurements the first one stands for the window and decides alone
+   when z² > 9 (3σ). Why 1: P_DR
+   is conservative (a bias of σ_b acting since the hand-over; on the corpus the dead
+   reckoning's error stayed inside 2σ all the time), so a model and a dead reckoning that
+   are both as good as their σ say disagree by less than their combined σ. Measured
+   (docs/benchmarks/aero.md), the largest 2 s mean is 0.11-0.54 in the corpus cases where
+   aiding beats dead reckoning (coax, heli) and 1.5-11 in the quad and heli cases where it
+   did not (without this rule: 60 s RMS 1.02 vs 0.10 m/s, 10 s error 0.73 vs 0.12); one
+   quad case stays at 0.52, indistinguishable, and remains 0.05 m/s (RMS) worse than dead
+   reckoning. The price: when the residual bias exceeds σ_b (0.05 m/s²) the rule cannot
+   tell the IMU from the model and falls back too (never worse than dead reckoning, but
+   the aiding's benefit is lost).
+
+A third rule is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
+"changing"): a model that was being contradicted by its data when the axis was lost (a
+wind change) gives no pseudo-measurement for that loss.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from glmav_observer.estimation.aero.model import DragModel, FloatArray, PseudoMeasurement
+
+
+@dataclass(frozen=True, slots=True)
+class AidedAxisConfig:
+    """Noise model of :class:`AidedAxis` and its two rules (module docstring)."""
+
+    #: white noise of the earth-frame acceleration, m/s²/√Hz (accelerometer noise density
+    #: of a small MEMS IMU with vibration, ~0.05; integrates to σ·√t)
+    accel_noise_mps2_rthz: float = 0.05
+    #: unknown constant error of the earth-frame acceleration, m/s², integrating to σ·t.
+    #: Horizontal (n, e): accelerometer bias left after calibration (~0.02) plus g·sin of
+    #: the attitude estimate's error (~0.2°: 0.035), ≈ 0.05. Vertical (d): the attitude
+    #: error enters only at second order (g·(1 − cos)), so the bias alone, 0.02
+    accel_bias_h_mps2: float = 0.05
+    accel_bias_v_mps2: float = 0.02
+    #: gate: an update whose |innovation| > gate_sigma · √(P + R) is rejected
+    gate_sigma: float = 5.0
+    #: correlation time of the pseudo-measurement's white part, s: updates closer than
+    #: this are not independent (turbulence, manoeuvres), so R is inflated by τ_c/Δt
+    corr_time_s: float = 1.0
+    #: correlation time of its model part (the coefficients' error: changes only as the
+    #: attitude does), s; R's model part is inflated by τ_m/Δt likewise
+    model_corr_time_s: float = 10.0
+    #: this many rejections in a row and aiding stops (the model no longer fits)
+    max_rejections: int = 50
+    #: rule 1: noise of the measured axes' velocity against a 1 s IMU prediction, m/s: a
+    #: filtered, lagging velocity (GPS through an EKF) is off by the acceleration times
+    #: its lag during manoeuvres; measured, the innovation reaches 0.19 m/s on the
+    #: ArduPilot corpus and 0.53 m/s on glmav-sitl's autopilot profile, so 0.2 (gate 1.06,
+    #: twice the largest seen)
+    sigma_v_meas_mps: float = 0.2
+    #: rule 1: time constant of the measured axes' IMU-propagated prediction, s. Its
+    #: innovation's σ is √(σ_meas² + σ_n² T + (σ_b T)²) = 0.21 m/s with the defaults
+    meas_track_time_s: float = 1.0
+    #: rule 1: gate on that innovation, in σ (1.06 m/s with the defaults; a Gaussian
+    #: innovation fails a 5σ gate in 6e-7 of the samples; none of the benchmark's 60 000)
+    meas_gate_sigma: float = 5.0
+    #: rule 1: the measured axes stay suspect this long after their last failed gate, s
+    meas_holdoff_s: float = 1.0
+    #: rule 1: after this long suspect, the prediction is re-synchronised, s
+    meas_resync_s: float = 10.0
+    #: rule 2: window of the z² average (exponential, over update time), s
+    stale_window_s: float = 2.0
+    #: rule 2: the average z² above this and the model is stale (module docstring: the
+    #: dead reckoning's σ is conservative, so a consistent pair stays below 1; measured
+    #: ≤ 0.54 where the model holds)
+    stale_nees_max: float = 1.0
+    #: rule 2: the first pseudo-measurement after a gap of ``stale_window_s`` decides
+    #: alone above this z² (3σ)
+    stale_gap_z2: float = 9.0
+
+
+class AidedState(NamedTuple):
+    """The lost axis: velocity (m/s), its 1σ (m/s), whether the last accepted
+    pseudo-measurement is recent (aided) or the axis is dead-reckoned, and why."""
+
+    v_mps: float
+    sigma_mps: float
+    aided: bool
+    why: str = ""
+
+
+class AidedAxis:
+    """One-state Kalman filter of a lost NED velocity axis (m/s).
+
+    Process model: v̇ = a_L + b + n, with a_L the IMU's earth-frame acceleration of the
+    axis, b an unknown constant error of σ ``accel_bias_mps2`` and n white noise of density
+    ``accel_noise_mps2_rthz``. A one-state filter cannot carry b, so the variance grows as
+    it would under a constant b since the hand-over, τ seconds ago:
+
+        P ← P + (σ_n² + 2 σ_b² τ) Δt        (pure propagation: P = P₀ + σ_n² t + σ_b² t²)
+
+    Update with a pseudo-measurement z (σ_z, model part σ_m): innovation ν = z − v,
+    R = (σ_z² − σ_m²) · max(1, τ_c/Δt_u) + σ_m²·max(1, τ_m/Δt_u); rejected when
+    |ν| > 5 √(P + σ_z²); after an accepted update P ≥ σ_m² (the coefficient error is the
+    same in every pseudo-measurement and is not averaged away). ``max_rejections`` in a
+    row, a broken model or rule 2 (module docstring) stop the aiding for good and put the
+    axis back on the dead reckoning; rule 1 suspends it.
+    """
+
+    def __init__(
+        self,
+        lost_axis: int,
+        v0_mps: float,
+        sigma0_mps: float,
+        t0_s: float = 0.0,
+        config: AidedAxisConfig | None = None,
+    ) -> None:
+        if lost_axis not in (0, 1, 2):
+            raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
+        self.lost_axis = lost_axis
+        self.config = config or AidedAxisConfig()
+        self.v_mps = float(v0_mps)
+        self.P_mps2 = float(sigma0_mps) ** 2
+        #: dead reckoning from the hand-over, kept for the fall-back
+        self.v_dr_mps = self.v_mps
+        self.P_dr_mps2 = self.P_mps2
+        self.t_s = t0_s
+        self._tau_s = 0.0  # time since the hand-over (the unestimated bias acts since then)
+        self._since_update_s = math.inf  # time since the last accepted update
+        self._t_update_s: float | None = None
+        self.n_accepted = 0
+        self.n_rejected = 0
+        self._rejections_in_row = 0
+        self.stopped = False
+        #: why the aiding stopped ("" while it has not)
+        self.stop_reason = ""
+        #: rule 1: the measured axes' IMU-propagated prediction (None before the first
+        #: update with measurements), when they were last outside the gate, since when
+        #: they are suspect, and how many updates were skipped for it
+        self._meas_axes = tuple(i for i in range(3) if i != lost_axis)
+        self._v_hat: list[float] | None = None
+        self._t_meas_s: float | None = None
+        self._meas_bad_t_s = -math.inf
+        self._meas_suspect_since_s: float | None = None
+        self.n_meas_suspect = 0
+        #: the last pseudo-measurement :meth:`update_from_model` made (None: none)
+        self.last_pm: PseudoMeasurement | None = None
+        #: rule 2: exponential average of z² against the dead reckoning and its weight
+        self._stale_z2 = 0.0
+        self._stale_w = 0.0
+
+    # ------------------------------------------------------------------ IMU rate
+    def propagate(self, dt_s: float, a_ned_mps2: Sequence[float]) -> None:
+        """Advance by ``dt_s`` with the IMU's earth-frame acceleration (n, e, d), m/s²
+        (E Γ less the compensated accelerometer bias): the lost axis's component moves
+        the estimate, the other two the measured axes' prediction (rule 1)."""
+        a_lost = float(a_ned_mps2[self.lost_axis])
+        if dt_s <= 0.0 or not math.isfinite(a_lost):
+            return
+        cfg = self.config
+        sigma_b = cfg.accel_bias_v_mps2 if self.lost_axis == 2 else cfg.accel_bias_h_mps2
+        # exact integral of σ_n² + 2 σ_b² τ over [τ, τ + Δt]
+        dP = cfg.accel_noise_mps2_rthz**2 * dt_s + sigma_b**2 * (
+            (self._tau_s + dt_s) ** 2 - self._tau_s**2
+        )
+        self.v_mps += a_lost * dt_s
+        self.P_mps2 += dP
+        self.v_dr_mps += a_lost * dt_s
+        self.P_dr_mps2 += dP
+        self._tau_s += dt_s
+        self._since_update_s += dt_s
+        self.t_s += dt_s
+        if self._v_hat is not None:
+            for n, i in enumerate(self._meas_axes):
+                a_i = float(a_ned_mps2[i])
+                if math.isfinite(a_i):
+                    self._v_hat[n] += a_i * dt_s
+
+    # ------------------------------------------------------------------ measurement rate
+    def update_from_model(
+        self,
+        model: DragModel,
+        f_mean_body_mps2: Sequence[float],
+        E: FloatArray,
+        v_meas_ned_mps: Sequence[float],
+    ) -> bool:
+        """One velocity measurement during the loss: the measured axes are checked first
+        (rule 1: a suspect measurement is not even turned into a pseudo-measurement, so it
+        cannot mark the model broken either), then the model's pseudo-measurement of the
+        lost axis (:meth:`DragModel.pseudo_measurement` from the mean specific force over
+        the interval, FRD m/s², E body→NED and the NED measurement, its lost entry ignored)
+        is fused by :meth:`update`. True when a pseudo-measurement was accepted; the last
+        one (or None) is kept in :attr:`last_pm`."""
+        self.last_pm = None
+        if self._measured_axes_suspect(v_meas_ned_mps):
+            self.n_meas_suspect += 1
+            return False
+        if self.stopped:
+            return False
+        self.last_pm = model.pseudo_measurement(
+            np.asarray(f_mean_body_mps2), E, np.asarray(v_meas_ned_mps), self.lost_axis
+        )
+        return self.update(self.last_pm, model_broken=model.broken)
+
+    def update(
+        self,
+        pm: PseudoMeasurement | None,
+        *,
+        v_meas_ned_mps: Sequence[float] | None = None,
+        model_broken: bool = False,
+    ) -> bool:
+        """Fuse a pseudo-measurement (None: nothing to fuse). True when accepted.
+
+        ``v_meas_ned_mps``: the NED velocity measured at this update (the lost axis's
+        entry is ignored), the one the pseudo-measurement was computed from; rule 1 checks
+        its two measured axes (None: not checked). ``model_broken``
+        (:attr:`DragModel.broken`): aiding stops and the axis falls back to dead
+        reckoning from the hand-over, so a model that went wrong leaves nothing behind."""
+        if model_broken:
+            self._stop("the drag model's two rows disagree")
+        if v_meas_ned_mps is not None and self._measured_axes_suspect(v_meas_ned_mps):
+            self.n_meas_suspect += 1
+            return False
+        if pm is None or self.stopped:
+            return False
+        cfg = self.config
+        dt_u = cfg.corr_time_s if self._t_update_s is None else self.t_s - self._t_update_s
+        self._t_update_s = self.t_s
+        dt_u = max(dt_u, 1e-6)
+        if self._stale(pm, dt_u):
+            self._stop("the pseudo-measurements disagree with dead reckoning")
+            return False
+        var_m = pm.sigma_model_mps**2
+        var_white = max(pm.sigma_mps**2 - var_m, 0.0)
+        R = var_white * max(1.0, cfg.corr_time_s / dt_u) + var_m * max(
+            1.0, cfg.model_corr_time_s / dt_u
+        )
+        nu = pm.v_mps - self.v_mps
+        S = self.P_mps2 + R
+        # the gate uses the pseudo-measurement's own σ (not the correlation-inflated R)
+        if nu * nu > cfg.gate_sigma**2 * (self.P_mps2 + pm.sigma_mps**2):
+            self.n_rejected += 1
+            self._rejections_in_row += 1
+            if self._rejections_in_row >= cfg.max_rejections:
+                # the pseudo-measurements and the estimate parted: one of them went wrong
+                # and the filter cannot tell which; dead reckoning is the safe side
+                self._stop(f"{cfg.max_rejections} rejections in a row")
+            return False
+        K = self.P_mps2 / S
+        self.v_mps += K * nu
+        self.P_mps2 = max((1.0 - K) * self.P_mps2, var_m)
+        self._since_update_s = 0.0
+        self.n_accepted += 1
+        self._rejections_in_row = 0
+        return True
+
+    def _stop(self, reason: str) -> None:
+        if not self.stopped:
+            self.stopped = True
+            self.stop_reason = reason
+            self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+
+    def _measured_axes_suspect(self, v_meas_ned_mps: Sequence[float]) -> bool:
+        """Rule 1 (module docstring): True while the measured axes are suspect."""
+        cfg = self.config
+        v = [float(v_meas_ned_mps[i]) for i in self._meas_axes]
+        if not all(math.isfinite(x) for x in v):
+            self._meas_bad_t_s = self.t_s
+            return True
+        if self._v_hat is None or self._t_meas_s is None:
+            self._v_hat = v
+            self._t_meas_s = self.t_s
+            return False
+        dt = max(self.t_s - self._t_meas_s, 0.0)
+        self._t_meas_s = self.t_s
+        T = cfg.meas_track_time_s
+        sigma_b = cfg.accel_bias_v_mps2 if 2 in self._meas_axes else cfg.accel_bias_h_mps2
+        var_nu = cfg.sigma_v_meas_mps**2 + cfg.accel_noise_mps2_rthz**2 * T + (sigma_b * T) ** 2
+        bad = any(
+            (x - xh) ** 2 > cfg.meas_gate_sigma**2 * var_nu
+            for x, xh in zip(v, self._v_hat, strict=True)
+        )
+        if bad:
+            self._meas_bad_t_s = self.t_s
+            if self._meas_suspect_since_s is None:
+                self._meas_suspect_since_s = self.t_s
+            elif self.t_s - self._meas_suspect_since_s >= cfg.meas_resync_s:
+                self._v_hat = v  # a step that lasts: the new level
+                self._meas_suspect_since_s = None
+            return True
+        alpha = min(1.0, dt / T)
+        self._v_hat = [xh + alpha * (x - xh) for x, xh in zip(v, self._v_hat, strict=True)]
+        if self.t_s - self._meas_bad_t_s < cfg.meas_holdoff_s:
+            return True
+        self._meas_suspect_since_s = None
+        return False
+
+    def _stale(self, pm: PseudoMeasurement, dt_u: float) -> bool:
+        """Rule 2 (module docstring): True when the pseudo-measurements have disagreed with
+        the dead reckoning by more than their combined σ (mean z² > ``stale_nees_max``)
+        over the last ``stale_window_s``."""
+        cfg = self.config
+        z2 = (pm.v_mps - self.v_dr_mps) ** 2 / (pm.sigma_mps**2 + self.P_dr_mps2)
+        # exponential forgetting over time; each update weighs the time it stands for, at
+        # most 0.2 s (a 5 Hz GPS's interval), so after a gap without pseudo-measurements
+        # the window refills before it is judged, rather than on the first sample
+        decay = math.exp(-dt_u / cfg.stale_window_s)
+        w = min(dt_u, 0.2) / cfg.stale_window_s
+        self._stale_z2 = decay * self._stale_z2 + w * z2
+        self._stale_w = decay * self._stale_w + w
+        # after a gap as long as the window, the first pseudo-measurement stands for the
+        # whole window: it decides alone when beyond 3σ (a consistent pair: 0.27 % of such
+        # samples, a few per loss; measured: the heli's 3.3 m/s jump after a 3.4 s gap)
+        if dt_u >= cfg.stale_window_s and z2 > cfg.stale_gap_z2:
+            return True
+        # judged once the window holds most of its weight (1 − e⁻¹: ~2 s of updates)
+        full = self._stale_w >= 1.0 - math.exp(-1.0)
+        return full and self._stale_z2 > cfg.stale_nees_max * self._stale_w
+
+    def state(self, aided_within_s: float = 1.0) -> AidedState:
+        """(v, σ, aided, why): aided while an update was accepted in the last
+        ``aided_within_s`` seconds."""
+        aided = self._since_update_s <= aided_within_s and not self.stopped
+        if self.stopped:
+            why = f"dead reckoning: {self.stop_reason}"
+        elif aided:
+            why = "aided"
+        elif self.t_s - self._meas_bad_t_s < self.config.meas_holdoff_s:
+            why = "dead reckoning: measured axes inconsistent with the IMU"
+        else:
+            why = "dead reckoning: no pseudo-measurement"
+        return AidedState(self.v_mps, math.sqrt(self.P_mps2), aided, why)
