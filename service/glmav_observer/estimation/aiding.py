@@ -4,41 +4,40 @@ While every axis is healthy and armed, the drag model (:class:`~glmav_observer.
 estimation.aero.DragModel`) learns from each velocity measurement: the body-frame specific
 force averaged over the interval since the previous one, E and the measured velocity.
 When an axis is isolated, the hand-over configuration dead-reckons it (the bank,
-:mod:`~glmav_observer.estimation.selection`); the ``aided`` estimate is that configuration
-with its lost axis corrected by a one-state filter (:class:`~glmav_observer.estimation.
-aero.AidedAxis`) on the *offset* δ between the aided and the dead-reckoned value:
+:mod:`~glmav_observer.estimation.selection`) and the ``aided`` estimate is that
+configuration with its lost axis corrected by a one-state filter (:class:`~glmav_observer.
+estimation.aero.AidedAxis`) on the *offset* δ between the aided and the dead-reckoned
+value:
 
-    δ̇ = noise (the bank already integrates the acceleration: one propagation, not two),
-    z = pseudo-measurement − dead-reckoned value,  v_aided = v_dr + δ,
+    δ̇ = noise (the bank integrates the lost axis's acceleration: one propagation),
+    z = pseudo-measurement − dead-reckoned value,   v_aided = v_dr + δ,
 
-started at δ = 0 with the hand-over's σ. The pseudo-measurement comes from the model with
-the two measured axes (:meth:`DragModel.pseudo_measurement`: None when the model's own
-tests fail, the axis is not observable at this attitude or not validated); the filter gates
-it at 5σ, and after a run of rejections or when the model calls itself broken it stops for
-good and falls back to its dead reckoning, here the offset 0: the plain dead reckoning.
-So the aided estimate is the dead reckoning unless the model is trusted, and its σ is the
-filter's (the dead reckoning's growth while no update is accepted).
+started at δ = 0 with the hand-over's σ. The filter is propagated with the earth-frame
+acceleration the bank is fed (E (f − b̂_obs) + g e_d) with the lost component set to 0: the
+measured axes' components feed its check of the measured axes against their IMU
+prediction. Its rules keep it from being worse than dead reckoning (the model's own tests;
+measured axes that disagree with their IMU prediction; pseudo-measurements that disagree
+with the dead reckoning: docs/observer.md); when one fires it stops, δ goes back to 0 and
+the ``aided`` estimate *is* the bank's dead reckoning, the ``active`` one.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
 from glmav_observer.estimation.aero import (
     AidedAxis,
     AidedAxisConfig,
+    AidedState,
     DragModel,
     DragModelConfig,
-    PseudoMeasurement,
 )
 
 Vec3 = tuple[float, float, float]
 
 
 class LostAxisAiding:
-    """The drag model of one vehicle and, while an axis is lost, its offset filter."""
+    """The drag model of one vehicle and, while an axis is lost, its aided filter."""
 
     def __init__(
         self,
@@ -49,11 +48,11 @@ class LostAxisAiding:
         self.model = DragModel(model_config)
         self.axis_config = axis_config
         self.sigma_handover_mps = sigma_handover_mps
-        self._offset: AidedAxis | None = None
+        self._axis: AidedAxis | None = None
 
     @property
     def lost_idx(self) -> int | None:
-        return None if self._offset is None else self._offset.lost_axis
+        return None if self._axis is None else self._axis.lost_axis
 
     def learn(
         self, t_s: float, f_mean_body_mps2: Vec3, e_flat: list[float], v_ned_mps: Vec3
@@ -62,38 +61,36 @@ class LostAxisAiding:
         self.model.learn(t_s, f_mean_body_mps2, _e(e_flat), v_ned_mps)
 
     def start(self, t_s: float, lost_idx: int) -> None:
-        """An axis is lost at ``t_s``: the offset filter starts at 0 with the hand-over σ."""
-        self._offset = AidedAxis(lost_idx, 0.0, self.sigma_handover_mps, t_s, self.axis_config)
+        """Axis ``lost_idx`` is lost at ``t_s``: the offset starts at 0, σ the hand-over's."""
+        self._axis = AidedAxis(lost_idx, 0.0, self.sigma_handover_mps, t_s, self.axis_config)
 
     def stop(self) -> None:
-        self._offset = None
+        self._axis = None
 
-    def propagate(self, dt_s: float) -> None:
-        """The offset's variance grows over a step (its mean does not: the bank moves v_dr)."""
-        if self._offset is not None:
-            self._offset.propagate(dt_s, 0.0)
+    def propagate(self, dt_s: float, a_ned_mps2: list[float]) -> None:
+        """Over a step, with the earth-frame acceleration the bank was fed (m/s²; the lost
+        axis's component is the bank's to integrate, not the offset's)."""
+        axis = self._axis
+        if axis is not None:
+            a = list(a_ned_mps2)
+            a[axis.lost_axis] = 0.0
+            axis.propagate(dt_s, a)
 
     def update(
         self, f_mean_body_mps2: Vec3, e_flat: list[float], v_meas_ned_mps: Vec3, v_dr_mps: float
     ) -> None:
-        """A measurement while the axis is lost: its two measured axes, the dead-reckoned
-        value of the lost one (``v_dr_mps``) at the same time."""
-        off = self._offset
-        if off is None or not math.isfinite(v_dr_mps):
-            return
-        pm = self.model.pseudo_measurement(
-            f_mean_body_mps2, _e(e_flat), v_meas_ned_mps, off.lost_axis
-        )
-        if pm is not None:
-            pm = PseudoMeasurement(pm.v_mps - v_dr_mps, pm.sigma_mps, pm.sigma_model_mps)
-        off.update(pm, self.model.broken)
+        """A measurement while the axis is lost (its lost entry is not used); ``v_dr_mps``
+        the lost axis's dead-reckoned value now."""
+        if self._axis is not None:
+            self._axis.update_from_model(
+                self.model, f_mean_body_mps2, _e(e_flat), v_meas_ned_mps, relative_to_mps=v_dr_mps
+            )
 
-    def lost_axis(self, v_dr_mps: float) -> tuple[float, float, bool]:
-        """(v, σ, aided) of the lost axis given its dead-reckoned value now."""
-        off = self._offset
-        assert off is not None
-        st = off.state()
-        return v_dr_mps + st.v_mps, st.sigma_mps, st.aided
+    def lost_axis(self, v_dr_mps: float) -> AidedState:
+        """(v, σ, aided, why) of the lost axis, given its dead-reckoned value now."""
+        assert self._axis is not None
+        st = self._axis.state()
+        return AidedState(v_dr_mps + st.v_mps, st.sigma_mps, st.aided, st.why)
 
 
 def _e(e_flat: list[float]) -> np.ndarray:

@@ -62,6 +62,7 @@ from glmav_observer.estimation.outputs import RecordBuilder, merge_counters
 from glmav_observer.estimation.seed import SEED_MAX_AGE_S, EstimatorSeed, seed_reference
 from glmav_observer.estimation.selection import ActiveSelection, SwitchEvent
 from glmav_observer.estimation.streams import StreamTiming
+from glmav_observer.frames import rotate_flat
 from glmav_observer.ingest.samples import (
     AidingSample,
     AttitudeSample,
@@ -226,9 +227,12 @@ class VehicleEstimator:
         f_bank = f if b_obs is None else (f[0] - b_obs[0], f[1] - b_obs[1], f[2] - b_obs[2])
         mask = None if all(self._use) else self._use
         self.bank.step(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
-        inputs.integrate(t, dt, self.bank.e_last_flat())
-        if self.aiding is not None:
-            self.aiding.propagate(dt)
+        e_flat = self.bank.e_last_flat()
+        inputs.integrate(t, dt, e_flat)
+        if self.aiding is not None and self.aiding.lost_idx is not None:
+            a_ned = rotate_flat(e_flat, f_bank)  # E (f − b̂_obs) + g e_d (V̇ = E Γ)
+            a_ned[2] += self.cfg.g_mps2
+            self.aiding.propagate(dt, a_ned)
         self.t_bank_s = t
 
     def _start_bank(self, t: float, y_ned_mps: Vec3 | list[float]) -> None:
@@ -499,11 +503,11 @@ class VehicleEstimator:
         aiding = self.aiding
         j = sel.lost_idx
         if aiding is not None and j is not None and aiding.lost_idx == j and n_faulty == 1:
-            v_j, sigma_j, aided = aiding.lost_axis(a_ned[j])
+            st = aiding.lost_axis(a_ned[j])
             v_aided = [a_ned[0], a_ned[1], a_ned[2]]
-            v_aided[j] = v_j
+            v_aided[j] = st.v_mps
             e_flat = self.bank.e_last_flat()
-            self.out.aided(t, e_flat, v_aided, sel.config, sigma_j, aided, out)
+            self.out.aided(t, e_flat, v_aided, sel.config, st.sigma_mps, st.aided, out)
         settled = sel.settle_jump(ned_l, c_int)
         if settled is not None:
             self.switches[-1] = settled

@@ -211,6 +211,8 @@ class AidedAxis:
         f_mean_body_mps2: Sequence[float],
         E: FloatArray,
         v_meas_ned_mps: Sequence[float],
+        *,
+        relative_to_mps: float = 0.0,
     ) -> bool:
         """One velocity measurement during the loss: the measured axes are checked first
         (rule 1: a suspect measurement is not even turned into a pseudo-measurement, so it
@@ -218,7 +220,13 @@ class AidedAxis:
         lost axis (:meth:`DragModel.pseudo_measurement` from the mean specific force over
         the interval, FRD m/s², E body→NED and the NED measurement, its lost entry ignored)
         is fused by :meth:`update`. True when a pseudo-measurement was accepted; the last
-        one (or None) is kept in :attr:`last_pm`."""
+        one (or None) is kept in :attr:`last_pm`.
+
+        ``relative_to_mps``: the filter's state is the lost axis's offset from a dead
+        reckoning kept elsewhere (the estimator's bank, propagated with the lost axis's
+        acceleration set to 0 here), whose value now this is: the pseudo-measurement is
+        fused as its difference from it, and a stop falls back to offset 0, that dead
+        reckoning itself."""
         self.last_pm = None
         if self._measured_axes_suspect(v_meas_ned_mps):
             self.n_meas_suspect += 1
@@ -228,7 +236,10 @@ class AidedAxis:
         self.last_pm = model.pseudo_measurement(
             np.asarray(f_mean_body_mps2), E, np.asarray(v_meas_ned_mps), self.lost_axis
         )
-        return self.update(self.last_pm, model_broken=model.broken)
+        pm = self.last_pm
+        if pm is not None and relative_to_mps != 0.0:
+            pm = PseudoMeasurement(pm.v_mps - relative_to_mps, pm.sigma_mps, pm.sigma_model_mps)
+        return self.update(pm, model_broken=model.broken)
 
     def update(
         self,
