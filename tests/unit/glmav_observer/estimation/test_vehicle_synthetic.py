@@ -215,3 +215,21 @@ def test_an_accelerometer_bias_step_isolates_no_velocity_axis() -> None:
     bx, by, bz = ev.bias_body_mps2
     assert bx > 0.2 and abs(bx) > 2.0 * max(abs(by), abs(bz)), ev.bias_body_mps2
     assert est.switches == []
+
+
+def test_aided_is_the_dead_reckoning_when_the_drag_model_is_not_trusted() -> None:
+    """This flight has no drag (f = Eᵀ(V̇ − g e_d) + b): the model's own tests refuse it, so
+    the ``aided`` estimate published while e is isolated is the active one to the bit, says
+    ``dead_reckoning``, and is published only while an axis is lost."""
+    est, recs = run(flight(25.0, fault=FAULTS["bias"](1, 12.0)))
+    aided = [r for r in recs if isinstance(r, VelocityRecord) and r.config == "aided"]
+    active = {r.t_boot_s: r for r in recs if isinstance(r, VelocityRecord) and r.config == "active"}
+    sw = est.switches[0]
+    assert sw.to_config == "c3" and aided
+    assert aided[0].t_boot_s >= sw.t_boot_s
+    assert {r.health for r in aided} == {"dead_reckoning"}
+    assert {r.source_config for r in aided} == {"c3"} and {r.lost_axis for r in aided} == {"e"}
+    assert len(est.switches) == 1  # the bias lasts to the end: aided to the last step
+    assert aided[-1].t_boot_s == max(active)
+    for r in aided:
+        assert r.v_ned_mps == active[r.t_boot_s].v_ned_mps

@@ -1,0 +1,94 @@
+"""The ``aided`` estimate in the service (issue 13), on a real autopilot's telemetry.
+
+ArduPilot's SITL coax (f_coax_clean, in the repo): its north velocity measurement frozen
+from t = 75.1 s for 60 s (the FDI isolates it; c2 dead-reckons north). The drag model
+learnt over the 70 s of healthy flight before aids north through the hand-over. Figures
+measured at this commit: aided north RMSE over the loss 0.102 m/s against the dead
+reckoning's 0.341; at +10 s 0.047 against 0.281; at +60 s 0.102 against 0.417.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from glmav_observer.app import Service
+from glmav_observer.config import ServiceConfig
+from glmav_observer.evaluation import (
+    FaultInjector,
+    VelocityFault,
+    interpolate_truth,
+    read_log_bytes,
+)
+from glmav_observer.ingest.framing import FrameCounters, iter_tlog
+from glmav_observer.records import Record, TruthRecord, VelocityRecord
+
+LOG = Path(__file__).parents[2] / "data" / "ardupilot_sitl" / "f_coax_clean.tlog.xz"
+T_ON_S = 75.1
+LOSS_S = 60.0
+
+
+class _Sink:
+    def __init__(self) -> None:
+        self.aided: list[VelocityRecord] = []
+        self.active: dict[float, VelocityRecord] = {}
+        self.truth: list[TruthRecord] = []
+
+    def write(self, r: Record) -> None:
+        if isinstance(r, VelocityRecord) and r.config == "aided":
+            self.aided.append(r)
+        elif isinstance(r, VelocityRecord) and r.config == "active":
+            self.active[r.t_boot_s] = r
+        elif isinstance(r, TruthRecord):
+            self.truth.append(r)
+
+    def close(self) -> None:
+        return None
+
+
+def test_a_frozen_axis_is_aided_by_the_learnt_drag_and_never_worse_than_dead_reckoning() -> None:
+    sink = _Sink()
+    service = Service(ServiceConfig(), [sink])
+    injector = FaultInjector([VelocityFault(0, "freeze", T_ON_S, T_ON_S + LOSS_S)])
+    for rec in iter_tlog(read_log_bytes(LOG), FrameCounters()):
+        injector.apply(rec.msg)
+        service.feed_message(rec.msg, rec.t_host_us * 1e-6, "log")
+    service.close()
+
+    assert sink.aided, "no aided estimate published"
+    t = np.array([r.t_boot_s for r in sink.aided])
+    # published only while north is isolated: from the isolation (a freeze needs its run of
+    # identical samples: < 1 s) to at most the end of the fault plus the recovery (2 s)
+    assert T_ON_S < t[0] < T_ON_S + 1.0
+    assert t[-1] <= T_ON_S + LOSS_S + 3.0
+    assert {r.lost_axis for r in sink.aided} == {"n"} and {r.source_config for r in sink.aided} == {
+        "c2"
+    }
+
+    tt = np.array([r.t_boot_s for r in sink.truth])
+    vt = np.array([r.v_ned_mps for r in sink.truth])
+    ok, v_truth = interpolate_truth(t, tt, vt)
+    truth_n = v_truth[:, 0]
+    aided_n = np.array([r.v_ned_mps[0] for r in sink.aided])
+    dr_n = np.array([sink.active[r.t_boot_s].v_ned_mps[0] for r in sink.aided])
+    err_aided, err_dr = aided_n[ok] - truth_n[ok], dr_n[ok] - truth_n[ok]
+    rmse_aided = math.sqrt(float(np.mean(err_aided**2)))
+    rmse_dr = math.sqrt(float(np.mean(err_dr**2)))
+    # measured 0.102 vs 0.341: the issue's 60 s bound (0.3 m/s) on the aided axis, and at
+    # least a third off the dead reckoning (a model that does nothing gives the same number)
+    assert rmse_aided <= 0.3, (rmse_aided, rmse_dr)
+    assert rmse_aided <= 0.67 * rmse_dr, (rmse_aided, rmse_dr)
+    # the issue's 10 s bound (median 0.1 m/s): measured 0.047 at +10 s
+    k10 = int(np.searchsorted(t[ok], T_ON_S + 10.0))
+    assert abs(err_aided[k10]) <= 0.1, err_aided[k10]
+    # aided most of the loss, and the σ it reports covers the error (issue: 95 % at 2σ)
+    aided_share = np.mean([r.health == "aided" for r in sink.aided])
+    assert aided_share > 0.5, aided_share
+    sigma = np.array([r.sigma_lost_mps for r in sink.aided], dtype=float)[ok]
+    assert np.mean(np.abs(err_aided) <= 2.0 * sigma) >= 0.95
+    # the measured axes are the hand-over configuration's, untouched
+    for r in sink.aided[:: max(1, len(sink.aided) // 50)]:
+        a = sink.active[r.t_boot_s]
+        assert r.v_ned_mps[1:] == a.v_ned_mps[1:]
