@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
-from glmav_observer.estimation.fdi import FdiConfig
+from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.observer import G_MPS2, EForm, gravity_body_mps2
 from glmav_observer.estimation.vehicle import EstimatorConfig, VehicleEstimator
 from glmav_observer.frames import e_exact

@@ -18,7 +18,7 @@ from typing import Any, get_args
 
 from glmav_observer.configurations import DEFAULT_GAMMA
 from glmav_observer.estimation import EForm
-from glmav_observer.estimation.fdi import FdiConfig
+from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig
 from glmav_observer.ingest.convert import RawImuScale

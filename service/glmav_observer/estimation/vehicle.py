@@ -62,16 +62,16 @@ from glmav_observer.configurations import (
 )
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
-from glmav_observer.estimation.fdi import (
+from glmav_observer.estimation.fdi import FaultDetector
+from glmav_observer.estimation.fdi_reference import (
     LAG,
     LAG_WINDOW_S,
-    FaultDetector,
-    FdiConfig,
     Integrals,
     Reference,
     dead_reckoning_age_s,
     sigma_dead_reckoning_mps,
 )
+from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.observer import G_MPS2, EForm, gamma_full_optimal
 from glmav_observer.estimation.streams import StreamTiming
 from glmav_observer.frames import e_exact, rotate_flat, rotate_t_flat
