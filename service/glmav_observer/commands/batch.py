@@ -271,7 +271,7 @@ def process_log(
 
     Runs in a worker (a local process or a Dask worker): every argument and result pickles.
     """
-    from glmav_observer.app import replay_flight_log, replay_tlog
+    from glmav_observer.app_replay import replay_flight_log, replay_tlog
     from glmav_observer.config import load_config
     from glmav_observer.ingest.logfiles import LogError, detect_format
     from glmav_toml import ConfigError

@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table, serve
+from glmav_observer.app import Service, serve
+from glmav_observer.app_sinks import open_sinks
+from glmav_observer.app_summary import ServiceSummary, rmse_table
 from glmav_observer.commands.demo_mission import MissionLog, fly
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.publish.sink import Sink

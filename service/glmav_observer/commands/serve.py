@@ -103,7 +103,8 @@ def default_workers(config: ServiceConfig, rerun_mode: str | None) -> tuple[int,
 
 
 def main(args: argparse.Namespace) -> int:
-    from glmav_observer.app import open_sinks, serve
+    from glmav_observer.app import serve
+    from glmav_observer.app_sinks import open_sinks
     from glmav_observer.config import check_rerun_mode, load_config
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSinkError

@@ -53,13 +53,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from glmav_observer.app import (
-    RATE_CHECK_PERIOD_S,
-    Service,
-    ServiceSummary,
-    open_sinks,
-    stop_on_signals,
-)
+from glmav_observer.app import RATE_CHECK_PERIOD_S, Service, stop_on_signals
+from glmav_observer.app_sinks import open_sinks
+from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.ingest.links import Link

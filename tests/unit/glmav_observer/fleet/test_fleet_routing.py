@@ -9,7 +9,7 @@ import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from glmav_observer.app import ServiceSummary
+from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.workers import (
     StreamSplitter,
