@@ -215,7 +215,8 @@ def _main_sharded(
     args: argparse.Namespace, config: ServiceConfig, links: list[str], workers: int
 ) -> int:
     """``--workers N > 1``: the router here, the services in N worker processes."""
-    from glmav_observer.fleet.workers import WorkerError, serve_sharded, worker_specs
+    from glmav_observer.fleet.worker_process import WorkerError
+    from glmav_observer.fleet.workers import serve_sharded, worker_specs
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSink, FileSinkError
 
