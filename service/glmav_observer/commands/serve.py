@@ -115,7 +115,7 @@ def main(args: argparse.Namespace) -> int:
         if args.service_id is not None:
             from dataclasses import replace
 
-            from glmav_observer.publish.zenoh_sink import check_service_id
+            from glmav_observer.publish.zenoh_keys import check_service_id
 
             config = replace(config, service_id=check_service_id(args.service_id))
         if args.mavlink_out is not None:
@@ -177,7 +177,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     """Raise for a Zenoh config file that cannot be parsed (the workers open the session;
     their other errors come back from them)."""
     if args.zenoh is not None:
-        from glmav_observer.publish.zenoh_sink import load_zenoh_config
+        from glmav_observer.publish.zenoh_config import load_zenoh_config
 
         load_zenoh_config(args.zenoh)
 

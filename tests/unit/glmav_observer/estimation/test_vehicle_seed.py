@@ -22,7 +22,7 @@ from glmav_observer.estimation.vehicle import (
     VehicleEstimator,
 )
 from glmav_observer.fleet.handover import HandoverError, seed_from_state
-from glmav_observer.publish.zenoh_sink import encode_json
+from glmav_observer.publish.zenoh_keys import encode_json
 from glmav_observer.records import HealthRecord, Record, VelocityRecord
 from glmav_testkit.synthetic_flight import FAULTS, flight, truth
 
