@@ -176,7 +176,7 @@ def run_demo(
     port, gcs_port = _free_udp_port(), _free_udp_port()
     conn = f"udpin:127.0.0.1:{port}"
     try:
-        # composed as `serve` composes it (app.open_sinks, app.serve): no file output
+        # composed as `serve` composes it (app_sinks.open_sinks, app.serve): no file output
         sinks = open_sinks(
             config,
             out="",
