@@ -41,15 +41,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from benchmarks.accuracy_pass import convergence_time, measured_axes, run_pass
 from benchmarks.accuracy_report import TIE, to_markdown
 from benchmarks.common import goal, write_result
 from benchmarks.paper import tlog_samples
 from glmav_observer.records import CONFIGS, NED_AXES
-
-FloatArray = NDArray[np.float64]
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "accuracy.md"
 RESULTS = Path(__file__).resolve().parent / "results" / "accuracy.json"
