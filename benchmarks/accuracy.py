@@ -41,45 +41,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from benchmarks.baselines import (
-    DeadReckoning,
-    KalmanVelocity,
-    RawMeasurement,
-    earth_accel_mps2,
-)
-from benchmarks.common import format_goals, format_table, goal, write_result
+from benchmarks.accuracy_pass import convergence_time, measured_axes, run_pass
+from benchmarks.accuracy_report import TIE, to_markdown
+from benchmarks.common import goal, write_result
 from benchmarks.paper import tlog_samples
-from glmav_observer.config import load_config
-from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
-from glmav_observer.estimation.vehicle import VehicleEstimator
-from glmav_observer.ingest.samples import (
-    AttitudeSample,
-    ImuSample,
-    Sample,
-    TruthSample,
-    VelocitySample,
-)
-from glmav_observer.records import CONFIGS, NED_AXES, VelocityRecord
-
-FloatArray = NDArray[np.float64]
+from glmav_observer.records import CONFIGS, NED_AXES
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "accuracy.md"
 RESULTS = Path(__file__).resolve().parent / "results" / "accuracy.json"
 NOMINAL = ("hover", "cruise", "climbing-turn", "gusts", "launch")
 VELOCITY_FAULTS = ("dropout", "freeze", "bias", "noise")
 BODY_AXES = ("x", "y", "z")
-#: The estimates compared at every truth sample, in column order of the trace.
-ESTIMATES: tuple[str, ...] = (
-    *(f"bank:{c}" for c in CONFIGS),
-    "bank:active",
-    *(f"kf:{c}" for c in CONFIGS),
-    *(f"raw:{c}" for c in CONFIGS),
-    "dr",
-)
-#: "Equal" in the verdict: the bank's RMSE within this factor of the KF's counts as a tie.
-TIE = 1.05
 CONV_WINDOW_S = 10.0
 AFTER_FAULT_S = (1.0, 5.0, 10.0)
 
@@ -141,150 +114,6 @@ def build_scenario(case: Case, sensor_profile: str = "ideal") -> Any:
     if case.duration_s is not None:
         sc = dataclasses.replace(sc, duration_s=case.duration_s)
     return sc
-
-
-# ---------------------------------------------------------------------------- one pass
-
-
-@dataclasses.dataclass
-class Trace:
-    """Truth and every estimate at the truth samples (T,), (T, 3), name -> (T, 3)."""
-
-    t_s: FloatArray
-    v_true_ned_mps: FloatArray
-    est: dict[str, FloatArray]
-    t_start_s: float
-    faults: list[dict[str, Any]]
-    switches: list[dict[str, Any]]
-    counters: dict[str, int]
-
-
-#: Cold start: the initial estimate is off by the paper's (48) body velocity, taken as an
-#: NED error (m/s), so that the 5 % convergence time has an error to converge from.
-COLD_OFFSET_NED_MPS = (2.0, -1.3, 1.3)
-
-
-def run_pass(samples: Sequence[Sample], *, cold: bool, until_s: float = math.inf) -> Trace:
-    """The estimator and the baselines over ``samples``.
-
-    Warm (``cold=False``): everyone starts from the first measurement, as the estimator
-    does. Cold: every estimate starts off by :data:`COLD_OFFSET_NED_MPS`; the KF's prior
-    is σ = 2 m/s per axis (the size of that error).
-
-    The KFs and dead reckoning share one integral of the held earth-frame acceleration
-    between the instants they are read or updated: with F = I and additive Q,
-    predicting once over the sum equals predicting at every IMU step.
-    """
-    est = VehicleEstimator(1, load_config(None).estimation)  # the daemon's defaults
-    kfs: list[KalmanVelocity] = []
-    raws: list[RawMeasurement] = []
-    dr: DeadReckoning | None = None
-    euler: tuple[float, float, float] | None = None
-    f: tuple[float, float, float] | None = None
-    pending_y: tuple[float, float, float] | None = None
-    acc_dv = np.zeros(3)  # ∫ a dt since the last flush
-    acc_dt = 0.0
-    t_prev = math.nan
-    t0 = math.nan
-    latest: dict[str, Any] = {}
-    t_l: list[float] = []
-    v_l: list[tuple[float, float, float]] = []
-    cols: dict[str, list[Any]] = {n: [] for n in ESTIMATES}
-
-    def flush() -> None:
-        nonlocal acc_dv, acc_dt
-        if acc_dt > 0.0 and dr is not None:
-            a_mean = acc_dv / acc_dt
-            dr.predict(acc_dt, a_mean)
-            for kf in kfs:
-                kf.predict(acc_dt, a_mean)
-        acc_dv = np.zeros(3)
-        acc_dt = 0.0
-
-    for s in samples:
-        held = (euler, f)
-        recs = est.on_sample(s)
-        t_bank = est.t_bank_s
-        if not kfs and t_bank is not None and isinstance(s, VelocitySample):
-            # the estimator just started from this measurement: so do the baselines
-            v0 = s.v_ned_mps
-            if cold:
-                assert euler is not None
-                v0 = tuple(v + o for v, o in zip(v0, COLD_OFFSET_NED_MPS, strict=True))  # type: ignore[assignment]
-                for c in CONFIGS:
-                    est.bank.set_state_ned(c, v0, euler)
-            p0 = 4.0 if cold else 0.05**2
-            kfs = [KalmanVelocity(v0, p0_mps2=p0) for _ in CONFIGS]
-            raws = [RawMeasurement(v0) for _ in CONFIGS]
-            dr = DeadReckoning(v0)
-            t_prev = t0 = t_bank
-            latest = {f"bank:{c}": v0 for c in (*CONFIGS, "active")}
-        elif kfs and t_bank is not None and t_bank > t_prev:
-            assert held[0] is not None and held[1] is not None
-            if pending_y is not None:  # applied at its own time, with the axes the bank used
-                masks = est.bank.last_meas_mask
-                flush()
-                for i in range(4):
-                    kfs[i].update(pending_y, masks[i])
-                    raws[i].update(pending_y, masks[i])
-                pending_y = None
-            dt = t_bank - t_prev
-            acc_dv += earth_accel_mps2(held[0], held[1]) * dt
-            acc_dt += dt
-            t_prev = t_bank
-        if isinstance(s, AttitudeSample):
-            euler = s.euler_rad
-        elif isinstance(s, ImuSample):
-            f = s.f_body_mps2
-        elif isinstance(s, VelocitySample) and kfs:
-            pending_y = s.v_ned_mps
-        for r in recs:
-            if isinstance(r, VelocityRecord):
-                latest[f"bank:{r.config}"] = r.v_ned_mps
-        if isinstance(s, TruthSample) and kfs and dr is not None:
-            if s.t_boot_s > until_s:
-                break
-            flush()
-            t_l.append(s.t_boot_s)
-            v_l.append(s.v_ned_mps)
-            for c in (*CONFIGS, "active"):
-                cols[f"bank:{c}"].append(latest[f"bank:{c}"])
-            for i, c in enumerate(CONFIGS):
-                cols[f"kf:{c}"].append(kfs[i].v_ned_mps)
-                cols[f"raw:{c}"].append(raws[i].v_ned_mps)
-            cols["dr"].append(dr.v_ned_mps)
-    return Trace(
-        t_s=np.asarray(t_l),
-        v_true_ned_mps=np.asarray(v_l),
-        est={n: np.asarray(v) for n, v in cols.items()},
-        t_start_s=t0,
-        faults=[ev.to_dict() for ev in est.faults],
-        switches=[sw.to_dict() for sw in est.switches],
-        counters=dict(est.counters),
-    )
-
-
-# ---------------------------------------------------------------------------- metrics
-
-
-def _config_of(name: str) -> str:
-    return name.split(":")[1] if ":" in name else "full"
-
-
-def _measured_axes(config: str) -> list[int]:
-    lost = LOST_AXIS_OF_CONFIG.get(config)
-    return [j for j in range(3) if lost is None or NED_AXES[j] != lost]
-
-
-def convergence_time(tr: Trace, name: str) -> float:
-    """Cold start: time from the start until the measured-axis error first falls below 5 %
-    of its initial value (inf if it never does within the pass)."""
-    config = _config_of(name)
-    cfg = "full" if config == "active" or name == "dr" else config
-    meas = _measured_axes(cfg)
-    err = np.linalg.norm(tr.est[name][:, meas] - tr.v_true_ned_mps[:, meas], axis=1)
-    below = np.flatnonzero(err <= 0.05 * float(err[0]))
-    return float(tr.t_s[below[0]] - tr.t_start_s) if below.size else math.inf
 
 
 def evaluate(case: Case, seed: int, sensor_profile: str = "ideal") -> dict[str, Any]:
@@ -400,7 +229,7 @@ def summarise(results: list[dict[str, Any]], case_list: list[Case]) -> dict[str,
             continue
         runs = by[case.label]
         for c in CONFIGS:
-            meas = _measured_axes(c)
+            meas = measured_axes(c)
             lost = [j for j in range(3) if j not in meas]
             row: dict[str, Any] = {"scenario": case.label, "config": c}
             for est in ("bank", "kf", "raw"):
@@ -603,107 +432,6 @@ def rebuild_docs(path: Path | None = None) -> None:
     res["skipped_runs"] = old.get("skipped_runs", [])
     write_result(res)
     _names(prof)[1].write_text(to_markdown(res) + "\n", encoding="utf-8")
-
-
-def to_markdown(result: dict[str, Any]) -> str:
-    s = result["summary"]
-    prof = result.get("sensor_profile", "ideal")
-    cmd = (
-        "python -m benchmarks.accuracy"
-        + (" --quick" if result["quick"] else "")
-        + (f" --sensor-profile {prof}" if prof != "ideal" else "")
-        + "".join(f" --case {c}" for c in result.get("only", []))
-    )
-    lines = [
-        "# Accuracy against baselines" + (f" ({prof} sensor profile)" if prof != "ideal" else ""),
-        "",
-        f"Produced by `{cmd}` (also `python -m benchmarks --only accuracy`); "
-        f"seeds {result['seeds']}, {len(result['runs'])} runs, {result['wall_s']:.0f} s wall "
-        f"on {result['workers']} worker(s). Do not edit by hand.",
-        "",
-        "Every run: SITL → tlog → the service's ingest → its estimator (defaults: bank, FDI,",
-        "hand-over); in the same pass, on the same held inputs, a filterpy Kalman filter",
-        "(state V_ned, V̇ = E f + g e_d, Q from the accelerometer density 4e-3 m/s²/√Hz,",
-        "R = 0.05² per axis), IMU dead reckoning (dr) and the raw measurement held, each",
-        "seeing the NED axes the configuration used in that step. Truth: SIM_STATE at 50 Hz.",
-        f"Errors in m/s, mean over seeds. 'tie': bank RMSE within ×{TIE} of the KF's.",
-        "",
-        "## Goals",
-        "",
-        format_goals(result["goals"]),
-        "",
-        "## Nominal flights: measured axes (and the lost axis of c1-c3)",
-        "",
-        "meas = the axes the configuration measures; lost = the axis it does not (pure",
-        "dead reckoning from the first sample for bank and KF alike: neither can",
-        "observe it, see docs/paper-reproduction.md; the bank removes the FDI's estimate of",
-        "the accelerometer bias, the KF does not). t5%: cold start 2.7 m/s off (the KF with",
-        "a matching prior), time until the measured-axis error first falls below 5 %",
-        "(truth at 50 Hz: 0.02 s resolution).",
-        "",
-        format_table(s["nominal"]),
-        "",
-        "Why the KF trails: its state has no accelerometer bias (turn-on σ 0.2 m/s²,",
-        "design.md) and Q comes from the white-noise density alone (4e-3 m/s²/√Hz), so its",
-        "steady-state bandwidth is √(q²/(σ²/f)) = √(1.6e-5/(0.0025/30)) ≈ 0.44 s⁻¹ and a bias",
-        "b leaves a lag of about b/0.44 s ≈ 0.45 m/s per 0.2 m/s². The bank's fixed γ (12 for",
-        "full, 90/70/70 for c1-c3) trades noise for bias (docs/observer.md), and the service",
-        "removes the FDI's estimate of the bias from f. A KF with bias states or an inflated",
-        "Q would close much of the gap; the table compares against the filter on the same",
-        "state (V_ned) and measurements as the bank, as specified. On the lost axis of c1-c3",
-        "both are dead reckoning from the start; the bank's is better only by the bias",
-        "compensation, and it still drifts (no estimator can observe that axis).",
-        "",
-        "## Sensor faults: isolation and the faulty axis",
-        "",
-        "delay: isolation time − fault start. false iso.: isolations of another axis or",
-        "before the fault (accelerometer faults: any isolation). bank = the active",
-        "estimate (hand-over to the configuration without the axis); kf = the KF fed the",
-        "same axes as the bank's full configuration (the FDI's verdicts). +N s: |error| of",
-        "the faulty axis (accelerometer faults: ‖error‖) N s after the fault starts.",
-        "",
-        format_table(s["faults"]),
-        "",
-        f"False isolations: {s['false_isolations']} in {s['flight_hours']:.3f} flight hours "
-        f"= {s['false_isolations_per_hour']:.2f} per hour; without the accelerometer-fault flights "
-        f"{s['false_isolations_no_accel_fault']} in {s['flight_hours_no_accel_fault']:.3f} h "
-        f"= {s['false_isolations_per_hour_no_accel_fault']:.2f} per hour.",
-        "",
-        "An accelerometer bias step (0.3 m/s² on one body axis) is not a velocity-sensor",
-        "fault: the FDI compares a velocity step on one axis with an accelerometer step in",
-        "body axes (ramps on every earth axis that rotate with the attitude) and reports the",
-        "latter as an `accel_bias` event with its Δb, isolating no velocity axis",
-        "(docs/observer.md). Such an event after the onset counts as the right call in the",
-        "'isolated' column of the accelerometer rows; any velocity-axis isolation there, or",
-        "an accelerometer event in another flight, counts as false.",
-    ]
-    if result.get("skipped_runs"):
-        lines += [
-            "",
-            "Not run (wall-time budget reached): " + ", ".join(result["skipped_runs"]) + ".",
-        ]
-    for fr in result.get("failed_runs", []):
-        lines += ["", f"Run failed: {fr['case']} seed {fr['seed']}:", "", "```", fr["error"], "```"]
-    worse = [v for v in s["verdict"] if v["ratio"] > TIE]
-    lines += ["", "## Where the bank does not beat or equal the KF", ""]
-    if worse:
-        lines += [
-            f"- {v['scenario']} / {v['config']}: bank/KF RMSE = {v['ratio']:.3g}" for v in worse
-        ]
-    else:
-        lines += [
-            "- Measured axes: nowhere in this run (every nominal scenario and configuration)."
-        ]
-    wf = s.get("faults_bank_worse", [])
-    if wf:
-        lines += [
-            f"- {w['scenario']}, faulty-axis error {w['metric']}: bank {w['bank']:.3g} m/s, "
-            f"KF {w['kf']:.3g} m/s"
-            for w in wf
-        ]
-    else:
-        lines += ["- Faulty axis after a fault (+1/+5/+10 s): nowhere in this run."]
-    return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_goals, format_table, goal, main_for, time_per_call_s
-from glmav_observer.publish.zenoh_sink import ZenohSink, encode_payload, open_zenoh_sink
+from glmav_observer.publish.zenoh_keys import encode_payload
+from glmav_observer.publish.zenoh_sink import ZenohSink, open_zenoh_sink
 from glmav_observer.records import CONFIGS, VelocityRecord
 
 LATENCY_GOAL_RATIO = 1.5

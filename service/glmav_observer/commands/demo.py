@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from glmav_observer.app import Service, ServiceSummary, open_sinks, rmse_table, serve
+from glmav_observer.app import Service, serve
+from glmav_observer.app_sinks import open_sinks
+from glmav_observer.app_summary import ServiceSummary, rmse_table
 from glmav_observer.commands.demo_mission import MissionLog, fly
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.publish.sink import Sink
@@ -174,7 +176,7 @@ def run_demo(
     port, gcs_port = _free_udp_port(), _free_udp_port()
     conn = f"udpin:127.0.0.1:{port}"
     try:
-        # composed as `serve` composes it (app.open_sinks, app.serve): no file output
+        # composed as `serve` composes it (app_sinks.open_sinks, app.serve): no file output
         sinks = open_sinks(
             config,
             out="",

@@ -25,7 +25,7 @@ import time
 from typing import Any
 
 from glmav_observer.publish.schema import validate
-from glmav_observer.publish.zenoh_sink import (
+from glmav_observer.publish.zenoh_config import (
     ZenohConfigError,
     clean_zenoh_error,
     load_zenoh_config,

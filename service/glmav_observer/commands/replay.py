@@ -73,7 +73,8 @@ def main(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
-    from glmav_observer.app import open_sinks, replay_flight_log, replay_tlog
+    from glmav_observer.app_replay import replay_flight_log, replay_tlog
+    from glmav_observer.app_sinks import open_sinks
     from glmav_observer.config import load_config
     from glmav_observer.ingest.logfiles import LogError, detect_format
     from glmav_observer.publish.file_sink import FileSinkError

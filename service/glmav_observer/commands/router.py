@@ -19,7 +19,7 @@ import threading
 from types import FrameType
 from typing import Any
 
-from glmav_observer.publish.zenoh_sink import (
+from glmav_observer.publish.zenoh_config import (
     ZenohConfigError,
     clean_zenoh_error,
     load_zenoh_config,

@@ -103,7 +103,8 @@ def default_workers(config: ServiceConfig, rerun_mode: str | None) -> tuple[int,
 
 
 def main(args: argparse.Namespace) -> int:
-    from glmav_observer.app import open_sinks, serve
+    from glmav_observer.app import serve
+    from glmav_observer.app_sinks import open_sinks
     from glmav_observer.config import check_rerun_mode, load_config
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSinkError
@@ -114,7 +115,7 @@ def main(args: argparse.Namespace) -> int:
         if args.service_id is not None:
             from dataclasses import replace
 
-            from glmav_observer.publish.zenoh_sink import check_service_id
+            from glmav_observer.publish.zenoh_keys import check_service_id
 
             config = replace(config, service_id=check_service_id(args.service_id))
         if args.mavlink_out is not None:
@@ -176,7 +177,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     """Raise for a Zenoh config file that cannot be parsed (the workers open the session;
     their other errors come back from them)."""
     if args.zenoh is not None:
-        from glmav_observer.publish.zenoh_sink import load_zenoh_config
+        from glmav_observer.publish.zenoh_config import load_zenoh_config
 
         load_zenoh_config(args.zenoh)
 
@@ -214,7 +215,8 @@ def _main_sharded(
     args: argparse.Namespace, config: ServiceConfig, links: list[str], workers: int
 ) -> int:
     """``--workers N > 1``: the router here, the services in N worker processes."""
-    from glmav_observer.fleet.workers import WorkerError, serve_sharded, worker_specs
+    from glmav_observer.fleet.worker_process import WorkerError
+    from glmav_observer.fleet.workers import serve_sharded, worker_specs
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSink, FileSinkError
 

@@ -7,7 +7,7 @@ into
 
 - A = ∫ a dt (the dead reckoning of every axis; its history over ~2 ``LAG_WINDOW_S``
   gives the lag regressor L, the mean acceleration over the last ``LAG_WINDOW_S``),
-- B = ∫ E dt (the accelerometer bias regressor, ``fdi.BiasFit``),
+- B = ∫ E dt (the accelerometer bias regressor, ``fdi_reference.ReferenceFit``),
 - C = ∫ (−a_e, a_n, 0) dt (the heading-error regressor, fdi module docstring).
 
 Held measurement. A held y lags the truth by about its age times |V̇|; with
@@ -20,7 +20,7 @@ from __future__ import annotations
 import collections
 import math
 
-from glmav_observer.estimation.fdi import LAG_WINDOW_S, Integrals
+from glmav_observer.estimation.fdi_reference import LAG_WINDOW_S, Integrals
 from glmav_observer.frames import rotate_flat
 
 Vec3 = tuple[float, float, float]
@@ -91,7 +91,7 @@ class HeldInputs:
         self.c_int[1] += a[0] * dt
         bi = self._b_int
         for k in range(9):
-            bi[k] += e_flat[k] * dt  # B = ∫ E dt (fdi.BiasFit)
+            bi[k] += e_flat[k] * dt  # B = ∫ E dt (fdi_reference.ReferenceFit)
         f = self.f_body_mps2
         fi = self._f_int
         fi[0] += f[0] * dt

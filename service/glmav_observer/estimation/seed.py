@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from glmav_observer.estimation.fdi import FdiConfig, Integrals, Reference, dead_reckoning_age_s
+from glmav_observer.estimation.fdi_reference import Integrals, Reference, dead_reckoning_age_s
+from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.records import FaultEvent, ReferenceFitSummary
 
 Vec3 = tuple[float, float, float]

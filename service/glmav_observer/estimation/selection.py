@@ -30,7 +30,8 @@ from glmav_observer.configurations import (
     config_index,
 )
 from glmav_observer.estimation.bank import ObserverBank
-from glmav_observer.estimation.fdi import FaultDetector, Integrals, Reference
+from glmav_observer.estimation.fdi import FaultDetector
+from glmav_observer.estimation.fdi_reference import Integrals, Reference
 from glmav_observer.records import NED_AXES
 
 Vec3 = tuple[float, float, float]

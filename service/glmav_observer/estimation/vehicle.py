@@ -49,12 +49,9 @@ from glmav_observer.configurations import CONFIG_WITHOUT_AXIS, CONFIGS, LOST_AXI
 from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
-from glmav_observer.estimation.fdi import (
-    LAG,
-    FaultDetector,
-    FdiConfig,
-    sigma_dead_reckoning_mps,
-)
+from glmav_observer.estimation.fdi import FaultDetector
+from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
+from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.gain import FullGain
 from glmav_observer.estimation.inputs import HeldInputs
 from glmav_observer.estimation.observer import G_MPS2, EForm

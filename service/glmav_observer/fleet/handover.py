@@ -17,7 +17,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from glmav_observer.estimation.fdi import FaultKind
+from glmav_observer.estimation.fdi_types import FaultKind
 from glmav_observer.estimation.seed import EstimatorSeed
 from glmav_observer.records import CONFIGS, NED_AXES, FaultEvent, ReferenceFitSummary
 

@@ -33,6 +33,10 @@ Outputs, as seen by the user:
 
 Workers ignore SIGINT/SIGTERM: the parent stops them by closing their pipe after the
 last batch, so nothing read is lost; a worker whose parent died sees the pipe close too.
+
+This module is the parent's side; the frames are cut and their system ids read in
+:mod:`glmav_observer.fleet.routing`, and a worker's side is
+:mod:`glmav_observer.fleet.worker_process`.
 """
 
 from __future__ import annotations
@@ -44,161 +48,35 @@ import multiprocessing
 import multiprocessing.connection
 import os
 import select
-import signal
 import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-from glmav_observer.app import (
-    RATE_CHECK_PERIOD_S,
-    Service,
-    ServiceSummary,
-    open_sinks,
-    stop_on_signals,
-)
+from glmav_observer.app import stop_on_signals
+from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.latency import LatencyHistogram
+from glmav_observer.fleet.routing import StreamSplitter, sysid_of
+from glmav_observer.fleet.worker_process import (
+    WorkerError,
+    WorkerResult,
+    WorkerSpec,
+    part_path,
+    worker_main,
+    worker_rerun_mode,
+)
 from glmav_observer.ingest.links import Link
 
 logger = logging.getLogger(__name__)
 
-MAGIC_V1 = 0xFE
-MAGIC_V2 = 0xFD
-_SIGNATURE_LEN = 13
 #: items per worker gathered before a pipe send
 BATCH = 64
 #: the longest an item waits in the parent for its batch to fill, s: one pipe send (and
 #: one worker wake-up) per millisecond instead of per datagram at moderate rates
 FLUSH_AFTER_S = 0.001
-
-
-class WorkerError(RuntimeError):
-    """A worker could not start (its sinks failed to open); the message says why."""
-
-
-def sysid_of(data: bytes | bytearray, p: int = 0) -> int | None:
-    """The sender's system id from the MAVLink header at ``p`` (None: no header there)."""
-    n = len(data)
-    if p >= n:
-        return None
-    magic = data[p]
-    if magic == MAGIC_V2:
-        return data[p + 5] if p + 5 < n else None
-    if magic == MAGIC_V1:
-        return data[p + 3] if p + 3 < n else None
-    return None
-
-
-def frame_length(data: bytes | bytearray, p: int) -> int | None:
-    """Total length of the frame at ``p`` (None: header incomplete or no magic)."""
-    n = len(data)
-    magic = data[p]
-    if magic == MAGIC_V2:
-        if p + 3 > n:
-            return None
-        return 12 + data[p + 1] + (_SIGNATURE_LEN if data[p + 2] & 0x01 else 0)
-    if magic == MAGIC_V1:
-        if p + 2 > n:
-            return None
-        return 8 + data[p + 1]
-    return None
-
-
-def crc_ok(buf: bytes | bytearray, p: int, length: int) -> bool:
-    """Whether the frame at ``p`` has a good CRC (only for ambiguous frames: it costs)."""
-    from pymavlink.dialects.v20 import ardupilotmega as dialect
-    from pymavlink.generator.mavcrc import x25crc
-
-    v2 = buf[p] == MAGIC_V2
-    if v2:
-        msgid = buf[p + 7] | buf[p + 8] << 8 | buf[p + 9] << 16
-        end = p + 10 + buf[p + 1]
-    else:
-        msgid = buf[p + 5]
-        end = p + 6 + buf[p + 1]
-    cls = dialect.mavlink_map.get(msgid)
-    if cls is None or end + 2 > p + length:
-        return False
-    crc = x25crc(bytes(buf[p + 1 : end]))
-    crc.accumulate(bytes([cls.crc_extra]))
-    return bool(crc.crc == (buf[end] | buf[end + 1] << 8))
-
-
-class StreamSplitter:
-    """Cuts a byte stream into frames by header length, without decoding them.
-
-    ``feed(data)`` returns ``(sysid or None, bytes)`` pieces: whole frames with their
-    sender's system id, and runs of bytes that are not a frame (sysid None). A candidate
-    frame is taken when a magic byte follows it or it ends the bytes received so far;
-    when other bytes follow it, it is taken only if its CRC is good (a corrupt length
-    byte claims a wrong span); otherwise its magic byte is passed on as garbage and the
-    scan resumes one byte later, as the decoder's own resync does."""
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-
-    def feed(self, data: bytes) -> list[tuple[int | None, bytes]]:
-        buf = self._buf
-        buf.extend(data)
-        out: list[tuple[int | None, bytes]] = []
-        p = 0
-        n = len(buf)
-        garbage_from = -1
-        while p < n:
-            b = buf[p]
-            if b not in (MAGIC_V2, MAGIC_V1):
-                if garbage_from < 0:
-                    garbage_from = p
-                p += 1
-                continue
-            length = frame_length(buf, p)
-            if length is None or p + length > n:
-                break  # wait for more
-            end = p + length
-            if end < n and buf[end] not in (MAGIC_V1, MAGIC_V2) and not crc_ok(buf, p, length):
-                if garbage_from < 0:
-                    garbage_from = p
-                p += 1
-                continue
-            if garbage_from >= 0:
-                out.append((None, bytes(buf[garbage_from:p])))
-                garbage_from = -1
-            out.append((sysid_of(buf, p), bytes(buf[p:end])))
-            p = end
-        if garbage_from >= 0:
-            out.append((None, bytes(buf[garbage_from:p])))
-        del buf[:p]
-        return out
-
-
-@dataclass(frozen=True)
-class WorkerSpec:
-    """What a worker needs to build its Service and sinks (picklable)."""
-
-    index: int
-    config: ServiceConfig
-    out: str | None
-    zenoh_config: str | None
-    zenoh_enabled: bool | None
-    rerun_mode: str | None
-    claim: bool = False
-    log_level: str = "INFO"
-    log_format: str = "text"
-
-
-@dataclass
-class WorkerResult:
-    index: int
-    summary: ServiceSummary
-    latency: LatencyHistogram
-    batches: int
-    items: int
-    cpu_s: float = 0.0  # the worker's CPU time (user + system), s
-    wall_s: float = 0.0  # from ready to stop, s
 
 
 @dataclass
@@ -226,12 +104,6 @@ class ShardedSummary:
         return "\n".join(lines)
 
 
-def part_path(out: str, index: int) -> str:
-    """``F.w<i>.<ext>``: worker ``index``'s part of the output ``F.<ext>``."""
-    p = Path(out)
-    return str(p.with_name(f"{p.stem}.w{index}{p.suffix}"))
-
-
 def merge_parts(out: str, parts: Sequence[str]) -> int:
     """Join the workers' parts into ``out`` (one CSV header) and remove them; rows written."""
     rows = 0
@@ -250,110 +122,6 @@ def merge_parts(out: str, parts: Sequence[str]) -> int:
                     rows += 1
             os.remove(part)
     return rows
-
-
-def worker_rerun_mode(mode: str | None, index: int) -> str | None:
-    """The Rerun mode of worker ``index`` for the user's ``mode`` (see the module doc)."""
-    if mode is None or mode == "off":
-        return mode
-    if mode.startswith("save:"):
-        p = Path(mode[5:])
-        return "save:" + str(p.with_name(f"{p.stem}.w{index}{p.suffix or '.rrd'}"))
-    if mode.startswith("connect"):
-        return mode
-    raise WorkerError(
-        f"--rerun {mode}: with several workers Rerun can only save:PATH (one file per "
-        "worker) or connect:URL; use --workers 1 for spawn or serve"
-    )
-
-
-# ---------------------------------------------------------------------- worker side
-def _worker_main(
-    spec: WorkerSpec,
-    inbox: multiprocessing.connection.Connection,
-    outbox: multiprocessing.connection.Connection,
-) -> None:
-    """A worker process: its own Service and sinks, fed by the parent's batches."""
-    from glmav_observer.logs import configure_logging
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    configure_logging(spec.log_level, spec.log_format)
-    try:
-        if spec.index > 0:  # wait until worker 0 has checked the service id on Zenoh
-            try:
-                if inbox.recv() != "go":
-                    return
-            except EOFError:  # the parent gave up starting
-                return
-        service = build_service(spec)
-    except Exception as err:  # reported to the parent, which exits 2 with it
-        outbox.send(("error", str(err)))
-        return
-    outbox.send(("ready", os.getpid()))
-    cpu0, wall0 = time.process_time(), time.monotonic()
-    latency = LatencyHistogram()
-    batches = items = 0
-    n_vehicles = 0
-    next_rate_check = time.monotonic()
-    clock = time.monotonic
-    try:
-        while True:
-            if inbox.poll(0.05):
-                try:
-                    batch = inbox.recv()
-                except EOFError:
-                    break
-                if batch is None:
-                    break
-                batches += 1
-                for link_id, t_arrival_s, data, peer in batch:
-                    service.current_peer = peer
-                    service.feed_bytes(link_id, data, t_arrival_s, datagram=True)
-                    latency.add(clock() - t_arrival_s)
-                items += len(batch)
-            now = clock()
-            nv = len(service.ingest.vehicles)
-            if nv != n_vehicles or now >= next_rate_check:
-                n_vehicles = nv
-                service.rate_requests(now)
-                next_rate_check = now + RATE_CHECK_PERIOD_S
-            if service.outbox:
-                outbox.send(("out", list(service.outbox)))
-                service.outbox.clear()
-    finally:
-        service.close()
-    result = WorkerResult(
-        spec.index,
-        service.summary(),
-        latency,
-        batches,
-        items,
-        cpu_s=time.process_time() - cpu0,
-        wall_s=time.monotonic() - wall0,
-    )
-    with contextlib.suppress(BrokenPipeError, OSError):  # the parent may be gone
-        outbox.send(("result", result))
-
-
-def build_service(spec: WorkerSpec) -> Service:
-    """The worker's Service with its sinks (a claiming one with ``spec.claim``)."""
-    sinks = open_sinks(
-        spec.config,
-        out=None if spec.out is None else part_path(spec.out, spec.index),
-        zenoh_config=spec.zenoh_config,
-        zenoh_enabled=spec.zenoh_enabled,
-        rerun_mode=worker_rerun_mode(spec.rerun_mode, spec.index),
-        recording_name=f"glmav-observer worker {spec.index}",
-        # the workers share one service id: worker 0 checks it is free on Zenoh before
-        # the others start (ShardedServer), who would otherwise see each other's token
-        zenoh_check_unique=spec.index == 0,
-    )
-    if spec.claim:
-        from glmav_observer.fleet.claims import ClaimingService
-
-        return ClaimingService(spec.config, sinks)
-    return Service(spec.config, sinks)
 
 
 # ---------------------------------------------------------------------- parent side
@@ -383,7 +151,7 @@ class ShardedServer:
                 inbox_r, inbox_w = ctx.Pipe(duplex=False)
                 res_r, res_w = ctx.Pipe(duplex=False)
                 proc = ctx.Process(
-                    target=_worker_main,
+                    target=worker_main,
                     args=(spec, inbox_r, res_w),
                     name=f"glmav-worker-{spec.index}",
                     daemon=True,

@@ -4,7 +4,7 @@ We use ``pymavlink.mavutil`` only to open what users name in the connection stri
 they know (``udpout:``, ``tcp:``, ``tcpin:``, serial devices ``/dev/...`` with an
 optional ``,BAUD``, through pyserial); its own parser is not used: bytes go to our
 :class:`~glmav_observer.ingest.framing.FrameDecoder`, which counts every bad frame.
-``.tlog`` files are replayed by :func:`glmav_observer.app.replay_tlog`, not here.
+``.tlog`` files are replayed by :func:`glmav_observer.app_replay.replay_tlog`, not here.
 
 ``udpin:HOST:PORT`` (and its alias ``udp:``) is opened here, not by mavutil: mavutil
 sets ``SO_REUSEADDR``, with which any local process that binds the same port with the

@@ -27,53 +27,45 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
-import re
-import socket
 import threading
 import time
 from collections.abc import Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from glmav_observer.publish.schema import (
     CONFIG_SCHEMA,
-    DEFAULT_DECIMATION,
     DEFAULT_PREFIX,
     KINDS,
     STATE_SCHEMA,
-    decimation_reason,
+)
+from glmav_observer.publish.zenoh_config import (
+    EMBEDDED_DEFAULT_NAME,
+    ZenohConfigError,
+    check_decimation,
+    load_zenoh_config,
+    open_session,
+)
+from glmav_observer.publish.zenoh_keys import (
+    alive_key,
+    check_prefix,
+    check_service_id,
+    config_key,
+    encode_json,
+    encode_payload,
+    route,
+    state_key,
 )
 from glmav_observer.records import (
     CONFIGS,
-    HealthRecord,
-    MeasurementRecord,
     Record,
-    TruthRecord,
-    VelocityRecord,
 )
 
 if TYPE_CHECKING:
     import zenoh
 
+
 log = logging.getLogger(__name__)
-
-#: The embedded default (mirrored by configs/zenoh/peer-local.json5): a peer listening on
-#: an ephemeral loopback port, trying a local router on tcp/127.0.0.1:7447 (retried in
-#: the background, not an error when absent), no multicast scouting: no traffic leaves
-#: the host.
-EMBEDDED_DEFAULT_JSON5 = """{
-  mode: "peer",
-  listen: { endpoints: ["tcp/127.0.0.1:0"] },
-  connect: { endpoints: ["tcp/127.0.0.1:7447"] },
-  scouting: { multicast: { enabled: false } },
-}"""
-EMBEDDED_DEFAULT_NAME = "<embedded peer-local default>"
-
-_WILDCARD_CHARS = frozenset("*$?#")
-_ZERROR_LOCATION = re.compile(r"\s+at /\S+:\d+\.?")
-
 
 #: How long a starting service waits for the liveliness token of a namesake (s): a query
 #: to a connected router is answered within milliseconds on a LAN; with no router or
@@ -81,205 +73,8 @@ _ZERROR_LOCATION = re.compile(r"\s+at /\S+:\d+\.?")
 DUPLICATE_CHECK_TIMEOUT_S = 2.0
 
 
-class ZenohConfigError(ValueError):
-    """A Zenoh configuration that cannot be used; the message names the file and problem."""
-
-
 class DuplicateServiceError(ZenohConfigError):
     """Another service with the same id is already on the Zenoh network."""
-
-
-# ---------------------------------------------------------------------------------------
-# Key expressions
-# ---------------------------------------------------------------------------------------
-
-
-def check_prefix(prefix: str) -> str:
-    """``prefix`` if it is a usable key prefix (no wildcards, no empty or ``@`` chunks)."""
-    chunks = prefix.split("/")
-    if not prefix or any(not c for c in chunks):
-        raise ZenohConfigError(f"zenoh prefix {prefix!r}: empty chunk (use e.g. 'glmav')")
-    if any(ch in _WILDCARD_CHARS for ch in prefix):
-        raise ZenohConfigError(f"zenoh prefix {prefix!r}: wildcards (* $ ? #) are not allowed")
-    if any(c.startswith("@") for c in chunks):
-        raise ZenohConfigError(f"zenoh prefix {prefix!r}: chunks starting with '@' are reserved")
-    return prefix
-
-
-def check_service_id(service_id: str) -> str:
-    """``service_id`` if it is one plain key chunk."""
-    if (
-        not service_id
-        or "/" in service_id
-        or service_id.startswith("@")
-        or any(ch in _WILDCARD_CHARS for ch in service_id)
-    ):
-        raise ZenohConfigError(
-            f"zenoh service id {service_id!r}: must be one non-empty key chunk "
-            "without '/', wildcards (* $ ? #) or a leading '@'"
-        )
-    return service_id
-
-
-def default_service_id() -> str:
-    """``<host>-<pid>``, made a valid key chunk."""
-    host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname()) or "host"
-    return f"{host}-{os.getpid()}"
-
-
-def velocity_key(prefix: str, sysid: int | str, config: str) -> str:
-    return f"{prefix}/{sysid}/velocity/{config}"
-
-
-def health_key(prefix: str, sysid: int | str) -> str:
-    return f"{prefix}/{sysid}/health"
-
-
-def measurement_key(prefix: str, sysid: int | str) -> str:
-    return f"{prefix}/{sysid}/measurement"
-
-
-def truth_key(prefix: str, sysid: int | str) -> str:
-    return f"{prefix}/{sysid}/truth"
-
-
-def state_key(prefix: str, sysid: int | str = "*") -> str:
-    return f"{prefix}/{sysid}/state"
-
-
-def config_key(prefix: str, service_id: str) -> str:
-    return f"{prefix}/@config/{service_id}"
-
-
-def alive_key(prefix: str, service_id: str = "*", sysid: int | str | None = None) -> str:
-    base = f"{prefix}/@alive/{service_id}"
-    return base if sysid is None else f"{base}/{sysid}"
-
-
-def route(prefix: str, record: Record) -> tuple[str, str, str]:
-    """``(kind, key, slot)`` of a record: its decimation kind, key, and slot in the state."""
-    if isinstance(record, VelocityRecord):
-        kind = "active" if record.config == "active" else "velocity"
-        return kind, velocity_key(prefix, record.sysid, record.config), record.config
-    if isinstance(record, HealthRecord):
-        return "health", health_key(prefix, record.sysid), "health"
-    if isinstance(record, MeasurementRecord):
-        return "measurement", measurement_key(prefix, record.sysid), "measurement"
-    if isinstance(record, TruthRecord):
-        return "truth", truth_key(prefix, record.sysid), "truth"
-    raise TypeError(f"not a record: {type(record).__name__}")
-
-
-# ---------------------------------------------------------------------------------------
-# Payloads
-# ---------------------------------------------------------------------------------------
-
-
-def _finite(value: Any) -> Any:
-    """``value`` with every non-finite float replaced by None (JSON has no NaN)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    return value
-
-
-def encode_json(obj: Mapping[str, Any]) -> bytes:
-    """Compact JSON bytes; NaN/inf anywhere become null."""
-    try:
-        return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
-    except ValueError:
-        return json.dumps(_finite(obj), separators=(",", ":"), default=str).encode()
-
-
-def encode_payload(record: Record, service_id: str | None = None) -> bytes:
-    """The payload of one record: ``record.to_dict()`` (with ``service_id`` when given)
-    as compact JSON."""
-    d = record.to_dict()
-    if service_id is not None:
-        d["service_id"] = service_id
-    return encode_json(d)
-
-
-# ---------------------------------------------------------------------------------------
-# Configuration
-# ---------------------------------------------------------------------------------------
-
-
-def clean_zenoh_error(exc: BaseException) -> str:
-    """A ZError's message without the Rust source location."""
-    return _ZERROR_LOCATION.sub("", str(exc)).strip()
-
-
-def _get(config: zenoh.Config, key: str) -> Any:
-    return json.loads(config.get_json(key))
-
-
-def load_zenoh_config(path: str | os.PathLike[str] | None) -> tuple[zenoh.Config, str]:
-    """Parse and check a Zenoh JSON5 file (None: the embedded default).
-
-    Returns ``(config, name)``; raises :class:`ZenohConfigError` naming the file.
-    """
-    import zenoh
-
-    if path is None:
-        name, text = EMBEDDED_DEFAULT_NAME, EMBEDDED_DEFAULT_JSON5
-    else:
-        name = os.fspath(path)
-        try:
-            text = Path(name).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ZenohConfigError(f"{name}: cannot read: {exc.strerror or exc}") from exc
-        except UnicodeDecodeError as exc:
-            raise ZenohConfigError(f"{name}: not UTF-8 text: {exc}") from exc
-    try:
-        config = zenoh.Config.from_json5(text)
-    except zenoh.ZError as exc:
-        raise ZenohConfigError(f"{name}: {clean_zenoh_error(exc)}") from exc
-    mode = _get(config, "mode") or "peer"
-    connect = _get(config, "connect/endpoints")
-    multicast = _get(config, "scouting/multicast/enabled")
-    has_connect = bool(connect) if not isinstance(connect, dict) else any(connect.values())
-    if mode == "client" and not has_connect and multicast is False:
-        raise ZenohConfigError(
-            f"{name}: mode 'client' needs connect.endpoints (e.g. [\"tcp/127.0.0.1:7447\"]) "
-            "when multicast scouting is off"
-        )
-    return config, name
-
-
-def open_session(config: zenoh.Config, name: str) -> zenoh.Session:
-    """Open a session; a failure raises :class:`ZenohConfigError` naming the config."""
-    import zenoh
-
-    try:
-        return zenoh.open(config)
-    except zenoh.ZError as exc:
-        mode = _get(config, "mode") or "peer"
-        where = f"mode {mode}, connect {_get(config, 'connect/endpoints')}"
-        listen = _get(config, "listen/endpoints")
-        if isinstance(listen, list):  # explicitly set (else the per-mode defaults)
-            where += f", listen {listen}"
-        raise ZenohConfigError(
-            f"{name}: cannot open the Zenoh session ({where}): {clean_zenoh_error(exc)}"
-        ) from exc
-
-
-def check_decimation(decimation: Mapping[str, int] | None) -> dict[str, int]:
-    """The full per-kind decimation (every Nth record; 0 = never publish that kind)."""
-    result = dict(DEFAULT_DECIMATION)
-    for kind, every in (decimation or {}).items():
-        if kind not in result:
-            raise ZenohConfigError(
-                f"zenoh decimation: unknown key kind {kind!r} (known: {', '.join(KINDS)})"
-            )
-        reason = decimation_reason(every)
-        if reason is not None:
-            raise ZenohConfigError(f"zenoh decimation.{kind}: {reason}, got {every!r}")
-        result[kind] = every
-    return result
 
 
 # ---------------------------------------------------------------------------------------

@@ -38,6 +38,10 @@ incoming packets must carry a valid signature with that key.
 
 tlog: each message as an 8-byte big-endian microsecond timestamp followed by the
 packet, timestamps ``start_unix_s + t_sim`` so that a seeded run is reproducible.
+
+One class, the vehicle's MAVLink endpoint, over 500 lines: its streams and its answers share
+one encoder (one sequence number), the parsers and the stream timers, and ``emit`` writes
+each message's fields out one per line.
 """
 
 from __future__ import annotations

@@ -21,7 +21,8 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from glmav_observer.app import Service, replay_tlog
+from glmav_observer.app import Service
+from glmav_observer.app_replay import replay_tlog
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import VelocityRecord, flatten

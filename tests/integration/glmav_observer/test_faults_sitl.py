@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from glmav_observer.app import replay_tlog
+from glmav_observer.app_replay import replay_tlog
 from glmav_sitl.config import data_path
 from glmav_testkit.sitl_live import SITL, fault_scenario, run_live, service_test_config
 

@@ -7,7 +7,7 @@ import bisect
 import math
 from pathlib import Path
 
-from glmav_observer.app import replay_tlog
+from glmav_observer.app_replay import replay_tlog
 from glmav_observer.config import load_config
 from glmav_observer.records import MeasurementRecord, VelocityRecord
 from glmav_testkit.sitl_live import MemorySink

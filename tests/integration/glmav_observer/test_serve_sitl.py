@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from glmav_observer.app import replay_tlog
+from glmav_observer.app_replay import replay_tlog
 from glmav_observer.publish.file_sink import FileSink
 from glmav_observer.records import VelocityRecord, flatten
 from glmav_testkit.sitl_live import MemorySink, run_live, service_test_config

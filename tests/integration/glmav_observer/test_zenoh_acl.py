@@ -11,7 +11,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from glmav_observer.publish.zenoh_sink import ZenohConfigError, open_zenoh_sink
+from glmav_observer.publish.zenoh_config import ZenohConfigError
+from glmav_observer.publish.zenoh_sink import open_zenoh_sink
 from glmav_testkit.zenoh_helpers import client_config, client_session, velocity, wait_until
 
 pytestmark = pytest.mark.timeout(60)

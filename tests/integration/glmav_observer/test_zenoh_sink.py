@@ -15,12 +15,9 @@ import pytest
 import zenoh
 
 from glmav_observer.publish.schema import SCHEMAS, validate
-from glmav_observer.publish.zenoh_sink import (
-    ZenohConfigError,
-    ZenohSink,
-    open_zenoh_sink,
-    route,
-)
+from glmav_observer.publish.zenoh_config import ZenohConfigError
+from glmav_observer.publish.zenoh_keys import route
+from glmav_observer.publish.zenoh_sink import ZenohSink, open_zenoh_sink
 from glmav_observer.records import CONFIGS, Record, VelocityRecord
 from glmav_testkit.zenoh_helpers import (
     RouterProcess,

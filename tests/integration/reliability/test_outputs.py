@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from glmav_observer.app import replay_tlog
+from glmav_observer.app_replay import replay_tlog
 from glmav_observer.cli import main
 from glmav_observer.config import ServiceConfig
 from glmav_observer.publish.file_sink import FileSink

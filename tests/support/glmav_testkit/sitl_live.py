@@ -16,7 +16,8 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from glmav_observer.app import Service, ServiceSummary
+from glmav_observer.app import Service
+from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.commands.demo import scenario_toml
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.ingest.links import Link

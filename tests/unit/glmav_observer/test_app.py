@@ -103,7 +103,7 @@ def test_a_short_stream_is_asked_again_with_backoff_and_observe_mode_sends_nothi
 
 
 def test_summary_text_is_plain_lines_and_says_when_no_velocity_arrived() -> None:
-    from glmav_observer.app import ServiceSummary, VehicleSummary
+    from glmav_observer.app_summary import ServiceSummary, VehicleSummary
 
     def vehicle(sysid: int, counters: dict[str, int]) -> VehicleSummary:
         return VehicleSummary(

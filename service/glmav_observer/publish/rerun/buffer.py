@@ -1,7 +1,8 @@
 """Records to columns: the sink's buffers, with no Rerun calls (the sender sends them).
 
 Rows are buffered per group of entities that share time stamps. A flush turns them into
-:class:`Batch` objects of column items (:class:`ScalarRows`, :class:`PoseRows`, ...);
+:class:`Batch` objects of column items (:class:`ScalarRows`, :class:`PoseRows`, ...,
+in :mod:`glmav_observer.publish.rerun.items`);
 the sender makes one ``rr.send_columns`` call, one Rerun chunk, per entity and item.
 A chunk costs about the same whatever its rows, so the configurations of the bank and
 the active estimate are instances of one entity per axis (one line each in the plot)
@@ -29,6 +30,16 @@ import numpy.typing as npt
 from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
 from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.frames import e_flat, quaternion_xyzw, rotate_t_flat
+from glmav_observer.publish.rerun.items import (
+    ArrowRows,
+    Batch,
+    DocumentRow,
+    Item,
+    PoseRows,
+    ScalarRows,
+    Setup,
+    TextRows,
+)
 from glmav_observer.publish.rerun.paths import (
     AXIS_STATE_INDEX,
     BODY_AXES,
@@ -55,77 +66,6 @@ from glmav_observer.records import (
 )
 
 WARMUP = "warmup"
-
-# --------------------------------------------------------------------------- items
-
-
-@dataclass(frozen=True, slots=True)
-class ScalarRows:
-    """Scalar entities sharing time stamps: ``(path, values (rows, instances))`` each."""
-
-    t_s: npt.NDArray[np.float64]
-    columns: list[tuple[str, npt.NDArray[np.float64]]]
-
-
-@dataclass(frozen=True, slots=True)
-class PoseRows:
-    """Transform3D rows: translation (rows, 3) in m, quaternion (rows, 4) x, y, z, w."""
-
-    path: str
-    t_s: npt.NDArray[np.float64]
-    translation: npt.NDArray[np.float64]
-    quaternion: npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True, slots=True)
-class ArrowRows:
-    """Arrows3D rows: one vector (rows, 3) per row."""
-
-    path: str
-    t_s: npt.NDArray[np.float64]
-    vectors: npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True, slots=True)
-class TextRows:
-    """TextLog entries ``(text, level)`` at one vehicle time."""
-
-    path: str
-    t_s: float
-    entries: list[tuple[str, str]]
-
-
-@dataclass(frozen=True, slots=True)
-class DocumentRow:
-    """A Markdown TextDocument at one vehicle time (replaces the previous one in the view)."""
-
-    path: str
-    t_s: float
-    markdown: str
-
-
-@dataclass(frozen=True, slots=True)
-class Setup:
-    """A new vehicle: its static styles, and the blueprint for all vehicles so far."""
-
-    sysid: int
-    sysids: list[int]
-
-
-Item = ScalarRows | PoseRows | ArrowRows | TextRows | DocumentRow | Setup
-
-
-@dataclass(frozen=True, slots=True)
-class Batch:
-    """What the sender sends in one go; ``rows`` for the counters; ``keep`` never dropped."""
-
-    items: list[Item]
-    rows: int
-    keep: bool = False
-
-
-# --------------------------------------------------------------------------- pure math
-
 
 # --------------------------------------------------------------------------- status
 

@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from glmav_observer.publish.rerun.blueprint import build_blueprint, log_styles
-from glmav_observer.publish.rerun.buffer import (
+from glmav_observer.publish.rerun.items import (
     ArrowRows,
     Batch,
     DocumentRow,

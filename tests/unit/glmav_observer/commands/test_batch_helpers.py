@@ -5,13 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from glmav_observer.commands.batch import (
-    _fault_text,
-    _fault_windows,
-    _html,
-    expand_paths,
-    log_ids,
-)
+from glmav_observer.commands.batch import expand_paths, log_ids
+from glmav_observer.commands.batch_log import _fault_text
+from glmav_observer.commands.batch_report import _fault_windows, _html
 
 
 def test_log_ids_are_unique_for_repeated_file_names() -> None:

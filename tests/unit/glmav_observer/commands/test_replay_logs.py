@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from glmav_observer.app import replay_flight_log
+from glmav_observer.app_replay import replay_flight_log
 from glmav_observer.cli import main as cli_main
 from glmav_observer.config import load_config
 from glmav_observer.ingest.logfiles import read_streams

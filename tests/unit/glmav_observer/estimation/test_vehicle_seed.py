@@ -19,7 +19,7 @@ import pytest
 from glmav_observer.estimation.seed import SEED_MAX_AGE_S
 from glmav_observer.estimation.vehicle import EstimatorConfig, VehicleEstimator
 from glmav_observer.fleet.handover import HandoverError, seed_from_state
-from glmav_observer.publish.zenoh_sink import encode_json
+from glmav_observer.publish.zenoh_keys import encode_json
 from glmav_observer.records import HealthRecord, Record, VelocityRecord
 from glmav_testkit.synthetic_flight import FAULTS, flight, truth
 

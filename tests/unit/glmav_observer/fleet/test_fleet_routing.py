@@ -9,17 +9,11 @@ import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from glmav_observer.app import ServiceSummary
+from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.fleet.latency import LatencyHistogram
-from glmav_observer.fleet.workers import (
-    StreamSplitter,
-    WorkerError,
-    merge_parts,
-    merge_summaries,
-    part_path,
-    sysid_of,
-    worker_rerun_mode,
-)
+from glmav_observer.fleet.routing import StreamSplitter, sysid_of
+from glmav_observer.fleet.worker_process import WorkerError, part_path, worker_rerun_mode
+from glmav_observer.fleet.workers import merge_parts, merge_summaries
 from glmav_observer.ingest.framing import FrameDecoder
 
 

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from glmav_observer.configurations import LOST_AXIS_OF_CONFIG
 from glmav_observer.publish.schema import SCHEMAS, SchemaError, check, validate
-from glmav_observer.publish.zenoh_sink import encode_payload
+from glmav_observer.publish.zenoh_keys import encode_payload
 from glmav_observer.records import (
     CONFIGS,
     FaultEvent,
