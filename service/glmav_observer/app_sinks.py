@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from glmav_observer.config import ServiceConfig
+from glmav_observer.configurations import AIDED, CONFIGS
 from glmav_observer.publish.file_sink import FileSink
 from glmav_observer.publish.sink import Sink
 
@@ -106,6 +107,7 @@ def open_sinks(
             sinks.append(
                 open_rerun_sink(
                     mode,
+                    configs=(*CONFIGS, AIDED) if config.estimation.aero_aiding else CONFIGS,
                     decimation=config.rerun.decimation,
                     serve_bind=config.rerun.serve_bind,
                     recording_name=recording_name,

@@ -66,6 +66,9 @@ CONFIGURATIONS: tuple[Configuration, ...] = (
 
 #: The configuration names in bank order.
 CONFIGS: tuple[str, ...] = tuple(c.name for c in CONFIGURATIONS)
+#: The estimate published beside the bank's while one axis is lost: the hand-over
+#: configuration with that axis aided by the learnt drag model (estimation/aiding.py).
+AIDED = "aided"
 #: Name -> the NED axis it does not measure (None for ``full``).
 LOST_AXIS_OF_CONFIG: dict[str, AxisName | None] = {c.name: c.lost_axis for c in CONFIGURATIONS}
 #: Name -> the index of that axis (None for ``full``).

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from glmav_observer.configurations import CONFIGS, LOST_AXIS_OF_CONFIG
+from glmav_observer.configurations import AIDED, CONFIGS, LOST_AXIS_OF_CONFIG
 from glmav_observer.frames import e_exact, rotate_t_flat
 from glmav_observer.ingest.samples import TruthSample, VelocitySample
 from glmav_observer.records import (
@@ -114,9 +114,9 @@ class RecordBuilder:
         v_body = rotate_t_flat(e_flat, v_ned_mps)
         out.append(
             VelocityRecord(
-                self.sysid, "aided", t, (v_body[0], v_body[1], v_body[2]),
+                self.sysid, AIDED, t, (v_body[0], v_body[1], v_body[2]),
                 (v_ned_mps[0], v_ned_mps[1], v_ned_mps[2]), LOST_AXIS_OF_CONFIG[source_config],
-                "aided" if aided else "dead_reckoning", self._seqn("aided"), source_config,
+                "aided" if aided else "dead_reckoning", self._seqn(AIDED), source_config,
                 sigma_lost_mps,
             )
         )  # fmt: skip

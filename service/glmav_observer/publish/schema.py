@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from glmav_observer.configurations import AIDED
 from glmav_observer.records import (
     CONFIGS,
     HEALTH_SCHEMA,
@@ -92,7 +93,7 @@ VELOCITY: Schema = _record(
     {
         "schema": {"const": VELOCITY_SCHEMA},
         "sysid": _SYSID,
-        "config": {"enum": [*CONFIGS, "aided", "active"]},
+        "config": {"enum": [*CONFIGS, AIDED, "active"]},
         "t_boot_s": _TIME,
         "v_body_mps": _VEC3,
         "v_ned_mps": _VEC3,
@@ -194,7 +195,7 @@ STATE: Schema = _object(
         "sysid": _SYSID,
         "velocity": {
             "type": "object",
-            "properties": {name: VELOCITY for name in [*CONFIGS, "aided", "active"]},
+            "properties": {name: VELOCITY for name in [*CONFIGS, AIDED, "active"]},
             "additionalProperties": False,
         },
         "health": _nullable(HEALTH),

@@ -33,6 +33,7 @@ import time
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
+from glmav_observer.configurations import AIDED
 from glmav_observer.publish.schema import (
     CONFIG_SCHEMA,
     DEFAULT_PREFIX,
@@ -279,9 +280,7 @@ class ZenohSink:
             "service_id": self.service_id,
             "sysid": sysid,
             "velocity": {
-                name: slots[name].to_dict()
-                for name in (*CONFIGS, "aided", "active")
-                if name in slots
+                name: slots[name].to_dict() for name in (*CONFIGS, AIDED, "active") if name in slots
             },
             "health": latest("health"),
             "measurement": latest("measurement"),

@@ -306,11 +306,29 @@ def _assert_continued(watch: Watch, victim: str, orphans: list[int], survivors: 
         fault_1 = [f for f in h1["isolated_faults"] if f["axis"] == "e"]
         assert fault_1 and fault_0 and fault_1[0]["kind"] == fault_0[0]["kind"] == "bias"
         assert fault_1[0]["t_detect_s"] == fault_0[0]["t_detect_s"]
-        # ... and stays isolated while the bias lasts (to the end of the flight)
+        # ... and stays isolated while the bias lasts (to the end of the flight), or until
+        # a gap restarts the estimator cold: more than max_gap_s (1 s) of the vehicle's
+        # stream lost, which is a restart by design (docs/reliability.md), not a takeover's
+        # failure; seen once in ~5 runs here (the survivors, the router and the generator
+        # share 2 cores: a service stalled > 1 s loses datagrams in the kernel)
         with watch.lock:
             later = [h for t, sid, h in watch.health[sysid] if sid != victim and t > t_last]
-        assert all(h["axis_state"]["e"] in ("faulty", "recovering") for h in later), [
-            h["axis_state"] for h in later if h["axis_state"]["e"] not in ("faulty", "recovering")
+        gaps0 = h1["counters"].get("estimator_restart_gap", 0)
+        before_gap = list(
+            itertools.takewhile(
+                lambda h, g0=gaps0: h["counters"].get("estimator_restart_gap", 0) == g0, later
+            )
+        )
+        # at least 3 s of the continued isolation are judged (the fault lasts to the end,
+        # ~10 s after the takeover): a restart right after the takeover fails here
+        assert before_gap[-1]["t_boot_s"] - h1["t_boot_s"] >= 3.0, (
+            h1["t_boot_s"],
+            [(h["t_boot_s"], h["counters"]) for h in later[len(before_gap) :][:1]],
+        )
+        assert all(h["axis_state"]["e"] in ("faulty", "recovering") for h in before_gap), [
+            h["axis_state"]
+            for h in before_gap
+            if h["axis_state"]["e"] not in ("faulty", "recovering")
         ]
 
 
