@@ -1,5 +1,7 @@
 """Aerodynamic aiding of a lost velocity axis (issue 13): dead reckoning vs aided, offline.
 
+(Over 500 lines: one benchmark, its cases, the table and the figure of one report.)
+
 For each flight (the ArduPilot SITL corpus in ``tests/data/ardupilot_sitl`` and ``glmav-sitl``
 flights made here), the service's ingest (``iter_tlog`` +
 :class:`~glmav_observer.ingest.pipeline.Ingest`) turns the tlog into samples; then, at five

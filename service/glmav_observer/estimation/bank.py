@@ -1,5 +1,8 @@
 """The observer bank: the four configurations (full, c1, c2, c3) of one vehicle, or of many.
 
+(Over 500 lines: the one update written three ways that tests pin to each other, the
+plain-float loop, its unrolled healthy step and the batched numpy form across vehicles.)
+
 :class:`ObserverBank` holds one vehicle's state and advances all configurations with the
 exact zero-order-hold update of (16) (:func:`~glmav_observer.estimation.observer.zoh_step`).
 For the exact E it runs a plain-float twin of the closed form (:func:`_step_closed_form`;

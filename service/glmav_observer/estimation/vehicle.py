@@ -1,5 +1,8 @@
 """One vehicle's estimator: the pipeline from a sample to the records it produces.
 
+(Over 500 lines for one reason: besides the pipeline it applies a takeover's seed, which
+sets every part at once; the seed's pure parts are in :mod:`.seed`.)
+
 Pure (no I/O, no clock but the vehicle's): :meth:`VehicleEstimator.on_sample` takes the
 typed samples of one vehicle in vehicle-time order and returns the records to publish.
 Each part has one job, in its own module:

@@ -1,5 +1,8 @@
 """The drag model of issue 13's aiding: learnt while healthy, used for a lost axis.
 
+(Over 500 lines: one recursive fit; the pseudo-measurement and the model's own tests read
+its internal state, so they stay with it.)
+
 A rotorcraft's accelerometer feels the horizontal drag of the air flowing past it. In body
 axes (FRD), per horizontal body axis j ∈ {x, y}:
 
