@@ -1,10 +1,12 @@
-"""The soak in its CI form: 10 vehicles for 60 s into one service over UDP.
+"""The soak in its CI form: 10 vehicles for 30 s into one service over UDP.
 
 The traffic is one ``glmav-sitl fleet`` process replaying a recorded simulator flight as
 10 system ids (issue 18: on a 2-core machine ten simulator processes compete with the
 service, and the kernel then dropped 25 % of the datagrams in bursts, which measured the
 machine, not the service; one climbing-turn vehicle reached 0.12 m/s on the thinned data).
-The record (10 minutes) is ``python -m benchmarks.soak`` (docs/benchmarks/soak.md).
+The record (10 minutes) is ``python -m benchmarks.soak`` (docs/benchmarks/soak.md). 30 s with
+10 s of warm-up (the RSS reaches its plateau within 10 s: 58.6 MB at 10 s, 59.3 MB at 30 s,
+measured at load 3) keeps the CI suite short; the long run is the benchmark's.
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ from glmav_testkit.soakrun import soak
 
 @pytest.mark.slow
 @pytest.mark.timeout(240)
-def test_ten_vehicles_for_a_minute_memory_counts_latency() -> None:
-    r = soak(n_vehicles=10, duration_s=60.0, warmup_s=20.0, windows=2, traffic="fleet")
+def test_ten_vehicles_for_half_a_minute_memory_counts_latency() -> None:
+    r = soak(n_vehicles=10, duration_s=30.0, warmup_s=10.0, windows=2, traffic="fleet")
     assert r["vehicles"] == list(range(1, 11))
     # in = out, exactly: every sample out of ingest reached its estimator, every record
     # its sink, every frame sent was decoded or dropped by the kernel (counted)
