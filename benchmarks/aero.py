@@ -42,7 +42,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchmarks.common import format_goals, format_table, goal, main_for, time_per_call_s
-from glmav_observer.estimation.aero import AidedAxis, DragModel
+from glmav_observer.estimation.aero import AidedAxis, DragModel, DragModelConfig
+from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.observer import G_MPS2, gamma_body_mps2
 from glmav_observer.evaluation import read_log_bytes
 from glmav_observer.frames import e_exact
@@ -50,6 +51,7 @@ from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
 from glmav_observer.ingest.samples import (
     AttitudeSample,
+    ControlSample,
     ImuSample,
     Sample,
     TruthSample,
@@ -115,6 +117,14 @@ class Flight:
     E_vel: FloatArray  # (m, 3, 3): body→NED at each velocity sample (latest ATTITUDE)
     t_truth_s: FloatArray
     v_truth_ned_mps: FloatArray
+    #: (m, 2): the cyclic regressors (ρ_x, ρ_y) of the latest SERVO_OUTPUT_RAW at each
+    #: velocity sample (NaN: none fresh), when the flight is flown with them; else None
+    control: FloatArray | None = None
+
+    def control_at(self, k: int) -> tuple[float, float] | None:
+        if self.control is None or not np.isfinite(self.control[k]).all():
+            return None
+        return (float(self.control[k, 0]), float(self.control[k, 1]))
 
 
 def tlog_samples(data: bytes, sysid: int = 1) -> list[Sample]:
@@ -128,9 +138,15 @@ def tlog_samples(data: bytes, sysid: int = 1) -> list[Sample]:
     return out
 
 
-def flight_from_samples(name: str, source: str, samples: Sequence[Sample]) -> Flight:
-    """Arrays for :func:`run_case` (E held from the latest ATTITUDE, like the service)."""
+def flight_from_samples(
+    name: str, source: str, samples: Sequence[Sample], control: ControlMapping | None = None
+) -> Flight:
+    """Arrays for :func:`run_case` (E held from the latest ATTITUDE, like the service);
+    with ``control``, the cyclic regressors from the latest SERVO_OUTPUT_RAW (held, like
+    the service's ``HeldInputs``)."""
     euler: tuple[float, float, float] | None = None
+    ctl: ControlSample | None = None
+    rho: list[tuple[float, float]] = []
     t_imu: list[float] = []
     f_imu: list[tuple[float, float, float]] = []
     eul_imu: list[tuple[float, float, float]] = []
@@ -144,6 +160,8 @@ def flight_from_samples(name: str, source: str, samples: Sequence[Sample]) -> Fl
     for s in samples:
         if isinstance(s, AttitudeSample):
             euler = s.euler_rad
+        elif isinstance(s, ControlSample):
+            ctl = s
         elif isinstance(s, ImuSample) and euler is not None:
             t_imu.append(s.t_boot_s)
             f_imu.append(s.f_body_mps2)
@@ -158,6 +176,14 @@ def flight_from_samples(name: str, source: str, samples: Sequence[Sample]) -> Fl
             v_meas.append(s.v_ned_mps)
             f_mean.append(f)
             eul_vel.append(euler)
+            r = None
+            if (
+                control is not None
+                and ctl is not None
+                and s.t_boot_s - ctl.t_boot_s <= control.max_age_s
+            ):
+                r = control.regressors(ctl.servo_pwm_us)
+            rho.append(r if r is not None else (math.nan, math.nan))
         elif isinstance(s, TruthSample):
             t_tr.append(s.t_boot_s)
             v_tr.append(s.v_ned_mps)
@@ -176,6 +202,7 @@ def flight_from_samples(name: str, source: str, samples: Sequence[Sample]) -> Fl
         E_vel=e_exact(np.asarray(eul_vel)),
         t_truth_s=np.asarray(t_tr),
         v_truth_ned_mps=np.asarray(v_tr).reshape(-1, 3),
+        control=np.asarray(rho).reshape(-1, 2) if control is not None else None,
     )
 
 
@@ -245,7 +272,13 @@ def run_case(fl: Flight, model: DragModel, t_loss_s: float, axis: int) -> dict[s
             dr.propagate(t - t_prev, a)
             ai.propagate(t - t_prev, a)
         t_prev = t
-        ai.update_from_model(model, fl.f_mean_body_mps2[k], fl.E_vel[k], fl.v_meas_ned_mps[k])
+        ai.update_from_model(
+            model,
+            fl.f_mean_body_mps2[k],
+            fl.E_vel[k],
+            fl.v_meas_ned_mps[k],
+            control=fl.control_at(k),
+        )
         n_pm += ai.last_pm is not None
         truth = float(np.interp(t, fl.t_truth_s, fl.v_truth_ned_mps[:, axis]))
         st = ai.state()
@@ -315,13 +348,17 @@ def run_flight(fl: Flight, *, d_forced: bool = False) -> list[dict[str, Any]]:
     """All cases of a flight: the model learns once up to each loss time (snapshots).
     ``d_forced``: also the d cases with d aided (off by default, ``aided_axes``), marked
     ``"variant": "d aided"``."""
-    model = DragModel()
+    model = DragModel(DragModelConfig(control=fl.control is not None))
     cases: list[dict[str, Any]] = []
     k = 0
     for t_loss in loss_times_s(fl):
         while k < len(fl.t_vel_s) and fl.t_vel_s[k] < t_loss:
             model.learn(
-                float(fl.t_vel_s[k]), fl.f_mean_body_mps2[k], fl.E_vel[k], fl.v_meas_ned_mps[k]
+                float(fl.t_vel_s[k]),
+                fl.f_mean_body_mps2[k],
+                fl.E_vel[k],
+                fl.v_meas_ned_mps[k],
+                fl.control_at(k),
             )
             k += 1
         for axis in range(3):
@@ -345,8 +382,10 @@ def corpus_flights() -> list[Flight]:
     ]
 
 
-def sim_flight(scenario: str, profile: str | None, seed: int, tmp: Path) -> Flight:
-    """Fly a glmav-sitl scenario for SIM_DURATION_S at max speed; its tlog as a Flight."""
+def sim_flights(scenario: str, profile: str | None, seed: int, tmp: Path) -> list[Flight]:
+    """Fly a glmav-sitl scenario for SIM_DURATION_S at max speed; its tlog as two Flights:
+    the drag model alone (source ``glmav-sitl``) and with the cyclic regressors from its
+    SERVO_OUTPUT_RAW (``glmav-sitl+cyclic``, glmav-sitl's channel map: ControlMapping())."""
     from glmav_sitl.runner import run as sitl_run
     from glmav_sitl.scenario import load_scenario
 
@@ -356,7 +395,11 @@ def sim_flight(scenario: str, profile: str | None, seed: int, tmp: Path) -> Flig
     label = f"{scenario}/{sc.sensor_profile}"
     path = tmp / f"{scenario}-{sc.sensor_profile}.tlog"
     sitl_run(sc, duration_s=SIM_DURATION_S, speed="max", seed=seed, tlog_path=path)
-    return flight_from_samples(label, "glmav-sitl", tlog_samples(path.read_bytes()))
+    samples = tlog_samples(path.read_bytes())
+    return [
+        flight_from_samples(label, "glmav-sitl", samples),
+        flight_from_samples(f"{label} +cyclic", "glmav-sitl+cyclic", samples, ControlMapping()),
+    ]
 
 
 def summarize(cases: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -434,7 +477,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     flights = corpus_flights()
     sim = SIM_FLIGHTS[:2] if quick else SIM_FLIGHTS
     with tempfile.TemporaryDirectory(prefix="aero-") as tmp:
-        flights += [sim_flight(s, p, 1, Path(tmp)) for s, p in sim]
+        flights += [fl for s, p in sim for fl in sim_flights(s, p, 1, Path(tmp))]
     t_data = time.perf_counter() - t_start
     all_cases = [c for fl in flights for c in run_flight(fl, d_forced=True)]
     cases = [c for c in all_cases if c["variant"] == "default"]
@@ -450,6 +493,9 @@ def run(quick: bool = False) -> dict[str, Any]:
             c for c in horiz if c["source"] == "ardupilot" and c["aided_fraction"] > 0.5
         ],
         "glmav-sitl (n, e)": [c for c in horiz if c["source"] == "glmav-sitl"],
+        "glmav-sitl + cyclic regressors (n, e)": [
+            c for c in horiz if c["source"] == "glmav-sitl+cyclic"
+        ],
     }
     for fl in flights:
         groups[f"{fl.name} n,e"] = [c for c in horiz if c["flight"] == fl.name]
