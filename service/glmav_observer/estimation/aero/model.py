@@ -289,18 +289,35 @@ class DragModel:
         self._t_seen_s = t_s
         for j in range(2):
             # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), r_j the j-th column of E;
-            # (C1): and ρ_j with the cyclic regressor. The dot products below add their
-            # terms left to right: the same floats as the 5 terms written out
+            # (C1): and ρ_j with the cyclic regressor
             rn, re, rd = El[0][j], El[1][j], El[2][j]
             sj = rn * v[0] + re * v[1] + rd * v[2]
             phi = [1.0, -sj, rn, re, -sj * abs(sj) if cfg.quadratic else 0.0]
-            if rho is not None:
-                phi.append(rho[j])
             P = self._Pl[j]
-            P_phi = [sum(map(mul, Pa, phi)) for Pa in P]
-            # one-step-ahead residual with the previous θ
-            e = f[j] - sum(map(mul, self._th[j], phi))
-            pPp = sum(map(mul, phi, P_phi))
+            th = self._th[j]
+            if rho is None:  # the drag alone: written out (a third of learn's cost)
+                P_phi = [
+                    Pa[0] * phi[0]
+                    + Pa[1] * phi[1]
+                    + Pa[2] * phi[2]
+                    + Pa[3] * phi[3]
+                    + Pa[4] * phi[4]
+                    for Pa in P
+                ]
+                # one-step-ahead residual with the previous θ
+                e = f[j] - (th[0] + th[1] * phi[1] + th[2] * rn + th[3] * re + th[4] * phi[4])
+                pPp = (
+                    phi[0] * P_phi[0]
+                    + phi[1] * P_phi[1]
+                    + phi[2] * P_phi[2]
+                    + phi[3] * P_phi[3]
+                    + phi[4] * P_phi[4]
+                )
+            else:
+                phi.append(rho[j])
+                P_phi = [sum(map(mul, Pa, phi)) for Pa in P]
+                e = f[j] - sum(map(mul, th, phi))
+                pPp = sum(map(mul, phi, P_phi))
             var_f = sig_f[j] ** 2
             if trusted and e * e > cfg.outlier_sigma**2 * (var_f + pPp):
                 outlier = True
@@ -347,10 +364,23 @@ class DragModel:
             ge = g * e
             self._th[j] = [t + ge * pa for t, pa in zip(self._th[j], P_phi, strict=True)]
             c = inv_l * inv_l / denom
-            self._Pl[j] = [
-                [pr * inv_l - ca * pk for pr, pk in zip(Pr, P_phi, strict=True)]
-                for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
-            ]
+            if rho is None:
+                p0, p1, p2, p3, p4 = P_phi
+                self._Pl[j] = [
+                    [
+                        Pr[0] * inv_l - ca * p0,
+                        Pr[1] * inv_l - ca * p1,
+                        Pr[2] * inv_l - ca * p2,
+                        Pr[3] * inv_l - ca * p3,
+                        Pr[4] * inv_l - ca * p4,
+                    ]
+                    for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+                ]
+            else:
+                self._Pl[j] = [
+                    [pr * inv_l - ca * pk for pr, pk in zip(Pr, P_phi, strict=True)]
+                    for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+                ]
         self._prior_due = lam * self._prior_due + (1.0 - lam)
         self.n_learned += 1
         self._np_cache = None
