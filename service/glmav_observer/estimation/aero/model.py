@@ -17,6 +17,11 @@ linear in θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j):
 
     f_j = φ_jᵀ θ_j,   φ_j = (1, −r_j·v, r_j,n, r_j,e, −s_j|s_j|),  s_j = r_j·v       (A1)
 
+With ``DragModelConfig.control`` each row gains the swash-plate cyclic term b_j ρ_j of
+:mod:`.control` (C1): θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j, b_j), φ_j ends with ρ_j, and
+every call needs ρ (a sample without it is neither learnt nor used). Without it the model
+is the five-parameter one, computed with the same floats.
+
 The quadratic term is taken in the ground speed, not the airspeed (A2: exact without wind;
 with wind its cross term 2q·w·u is absorbed by the linear terms): taking it in the
 estimated airspeed makes the regression depend on its own output, which diverged on
