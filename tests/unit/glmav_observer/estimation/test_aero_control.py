@@ -93,3 +93,7 @@ def test_config_table_off_by_default_and_checked() -> None:
     with pytest.raises(ConfigError, match=r"must be in \[1, 16\]") as info:
         parse_config({"estimation": {"aero_control": {"omega2_channel": 17}}}, "my.toml")
     assert info.value.key == "estimation.aero_control.omega2_channel"
+    # the stream can be asked for like the others (not by default)
+    assert "SERVO_OUTPUT_RAW" not in parse_config({}).ingest.rates_hz
+    asked = parse_config({"rates": {"hz": {"SERVO_OUTPUT_RAW": 50.0}}})
+    assert asked.ingest.rates_hz["SERVO_OUTPUT_RAW"] == 50.0
