@@ -1,13 +1,14 @@
 """The ``aided`` estimate with the swash-plate cyclic regressors (issue 13, glmav-sitl).
 
 glmav-sitl flies the paper's coaxial GLMAV, whose horizontal specific force is mostly the
-lower rotor's tilted thrust (equations.md eq. 5), not drag: the drag model alone never
-trusts itself there (docs/benchmarks/aero.md, "glmav-sitl (n, e)": 0 of 40 cases). With
-SERVO_OUTPUT_RAW mapped to the cyclic regressors (``[estimation.aero_control]``,
-estimation/aero/control.py) it does. A climbing turn (still air, seed 2) is flown for 75 s,
-the north measurement is frozen from 30 s to 70 s and the service isolates it; the aided
-north is scored against SIM_STATE beside the dead reckoning the service would otherwise
-publish (``active``).
+lower rotor's tilted thrust (equations.md eq. 5), not drag. With SERVO_OUTPUT_RAW mapped
+to the cyclic regressors (``[estimation.aero_control]``, estimation/aero/control.py) the
+model learns that force too. A climbing turn (still air, seed 2; one 100 Hz IMU stream,
+50 Hz attitude, 10 Hz truth: a fifth of the default messages, for the test's time) is
+flown for 57 s, the north measurement is frozen from 25 s for 30 s and the service isolates
+it; the aided north is scored against SIM_STATE beside the dead reckoning the service
+would otherwise publish (``active``), with and without the channel map (the control
+experiment: the same service, the drag model alone).
 """
 
 from __future__ import annotations
@@ -29,9 +30,14 @@ from glmav_observer.records import Record, TruthRecord, VelocityRecord
 T_ON_S = 25.0
 LOSS_S = 30.0
 DURATION_S = 57.0
-#: one IMU stream (HIGHRES_IMU 250 Hz; RAW_IMU and SCALED_IMU would only be superseded)
-#: and 10 Hz truth: a third of the default messages, for the test's time
-RATES_HZ = {"raw_imu": 0.0, "scaled_imu": 0.0, "sim_state": 10.0}
+#: one IMU stream (RAW_IMU and SCALED_IMU would only be superseded), 100 Hz
+RATES_HZ = {
+    "raw_imu": 0.0,
+    "scaled_imu": 0.0,
+    "highres_imu": 100.0,
+    "attitude": 50.0,
+    "sim_state": 10.0,
+}
 
 
 class _Sink:
@@ -88,6 +94,10 @@ def _errors(sink: _Sink) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     return t[ok], aided_n[ok] - v_truth[ok, 0], dr_n[ok] - v_truth[ok, 0], sigma[ok]
 
 
+def _rms(e: np.ndarray) -> float:
+    return math.sqrt(float(np.mean(e**2)))
+
+
 def test_the_cyclic_regressors_aid_the_lost_axis_on_the_glmav(tlog: bytes) -> None:
     sink, service = _fly(tlog, ControlMapping())
     est = service.estimators[1]
@@ -96,27 +106,37 @@ def test_the_cyclic_regressors_aid_the_lost_axis_on_the_glmav(tlog: bytes) -> No
     # the SERVO_OUTPUT_RAW stream reached the model: it has the control term and never had
     # to skip a sample for want of a fresh control (50 Hz stream, 0.1 s max age)
     assert model.config.control and model.n_no_control == 0
-    assert model.n_learned > 500  # ≥ 20 s at 30 Hz before the loss
-    # b_j ≈ β/m · Ω_ref² = 1.1 m/s² on the default vehicle (control.py); measured 0.84 and
-    # 0.91: the command leads the swash-plate (10 ms) and Ω2 (50 ms motor lag), and the
+    assert model.n_learned > 500  # ~20 s at 30 Hz before the loss (measured 689)
+    # b_j ≈ β/m · Ω_ref² = 1.1 m/s² on the default vehicle (control.py); measured 0.78 and
+    # 0.69: the command leads the swash-plate (10 ms) and Ω2 (50 ms motor lag), and the
     # constant c shares the trim. Within a factor 2 (the physics, not a tuned number)
     assert np.all((model.theta[:, 5] > 0.55) & (model.theta[:, 5] < 2.2)), model.theta[:, 5]
     assert sink.aided, "no aided estimate published"
     t, e_ai, e_dr, sigma = _errors(sink)
     assert T_ON_S < t[0] < T_ON_S + 1.0 and t[-1] <= T_ON_S + LOSS_S + 3.0
     assert {r.lost_axis for r in sink.aided} == {"n"}
-    rms_ai = math.sqrt(float(np.mean(e_ai**2)))
-    rms_dr = math.sqrt(float(np.mean(e_dr**2)))
-    # measured at this commit: RMSE over the 30 s loss 0.122 (aided) vs 0.263 m/s (dead
-    # reckoning); +10 s 0.033 vs 0.329; +30 s 0.053 vs 0.249; aided 96 % of the time; 2σ
-    # covers 100 %. Asserted: at least a third off the dead reckoning (a model that does
-    # nothing gives the same number; measured 54 % off), the issue's 10 s bound (0.1 m/s)
-    # and σ coverage (95 %)
-    assert rms_ai <= 0.67 * rms_dr, (rms_ai, rms_dr)
-    k10 = int(np.searchsorted(t, T_ON_S + 10.0))
-    assert abs(e_ai[k10]) <= 0.1, (e_ai[k10], e_dr[k10])
+    # measured at this commit: RMSE over the 30 s loss 0.064 (aided) vs 0.114 m/s (dead
+    # reckoning); last 10 s 0.051 vs 0.116; worst 0.175 vs 0.289 (+10 s: 0.094 vs 0.120);
+    # aided 95 % of the time; 2σ covers 100 %. Asserted: a quarter off the dead reckoning
+    # (a model that does nothing gives the same number; measured 44 % off), over the
+    # whole loss and its last 10 s (the error does not grow), the issue's 60 s bound
+    # (0.3 m/s) at every instant, σ coverage (95 %)
+    assert _rms(e_ai) <= 0.75 * _rms(e_dr), (_rms(e_ai), _rms(e_dr))
+    late = t > t[-1] - 10.0
+    assert _rms(e_ai[late]) <= 0.75 * _rms(e_dr[late]), (_rms(e_ai[late]), _rms(e_dr[late]))
+    assert np.abs(e_ai).max() <= 0.3
     assert np.mean([r.health == "aided" for r in sink.aided]) > 0.5
     assert np.mean(np.abs(e_ai) <= 2.0 * sigma) >= 0.95
     # the measured axes are the hand-over configuration's, untouched
     for r in sink.aided[:: max(1, len(sink.aided) // 50)]:
         assert r.v_ned_mps[1:] == sink.active[r.t_boot_s].v_ned_mps[1:]
+
+    # the control experiment: without the channel map the same service has the drag model
+    # alone, which on this flight never trusts itself (measured: aided 0 % of the loss,
+    # RMSE 0.114 = the dead reckoning's): the gain above is the cyclic regressors'
+    plain, service0 = _fly(tlog, None)
+    est0 = service0.estimators[1]
+    assert est0.aiding is not None and not est0.aiding.model.config.control
+    _, e_ai0, e_dr0, _ = _errors(plain)
+    assert _rms(e_dr0) == pytest.approx(_rms(e_dr))  # the same dead reckoning
+    assert _rms(e_ai) <= 0.75 * _rms(e_ai0), (_rms(e_ai), _rms(e_ai0))
