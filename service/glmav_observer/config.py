@@ -21,6 +21,7 @@ from typing import Any, get_args
 
 from glmav_observer.configurations import DEFAULT_GAMMA
 from glmav_observer.estimation import EForm
+from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig
@@ -186,6 +187,17 @@ _BOUNDS: dict[str, Check] = {
     "metrics_skip_s": within(0.0, 3600.0),
     "gamma_full_min": within(0.0, 1000.0, lo_open=True),
     "gamma_full_max": within(0.0, 1000.0, lo_open=True),
+    # [estimation.aero_control]: SERVO_OUTPUT_RAW channel map (estimation/aero/control.py)
+    "omega2_channel": within(1, 16),
+    "dcx_channel": within(1, 16),
+    "dcy_channel": within(1, 16),
+    "omega2_pwm_zero_us": within(0.0, 65535.0),
+    "dcx_pwm_zero_us": within(0.0, 65535.0),
+    "dcy_pwm_zero_us": within(0.0, 65535.0),
+    "omega2_radps_per_us": within(-100.0, 100.0),
+    "dcx_rad_per_us": within(-0.1, 0.1),
+    "dcy_rad_per_us": within(-0.1, 0.1),
+    "max_age_s": within(0.0, 10.0, lo_open=True),
     # [fdi]
     "sigma_meas_mps": within(0.0, 10.0, lo_open=True),
     "vet_delay_s": within(0.0, 60.0, lo_open=True),
@@ -353,6 +365,11 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     }
     e_form = est.get("e_form", str, e_base.e_form, one_of(*get_args(EForm)))
     est_fields = _fields_from(est, e_base)
+    ctl_r = est.sub("aero_control")
+    ctl_on = ctl_r.get("enabled", bool, False)
+    ctl_fields = _fields_from(ctl_r, ControlMapping())
+    ctl_r.done()
+    est_fields["aero_control"] = ControlMapping(**ctl_fields) if ctl_on else None
     est.done()
     # [fdi]
     fdi_r = root.sub("fdi")

@@ -31,6 +31,7 @@ STREAM_IDS: dict[str, int] = {
     "attitude": 30,
     "local_position_ned": 32,
     "sim_state": 108,
+    "servo_output_raw": 36,
 }
 
 
@@ -501,6 +502,7 @@ def effective_rates(sitl: SitlConfig, sc: Scenario) -> dict[str, float]:
         "attitude": 100.0,
         "local_position_ned": 30.0,
         "sim_state": 50.0,
+        "servo_output_raw": 50.0,
     }
     rates.update(sitl.rates_hz)
     if sc.sensor_profile == "autopilot":

@@ -49,6 +49,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from glmav_observer.configurations import CONFIG_WITHOUT_AXIS, CONFIGS, LOST_AXIS_OF_CONFIG
+from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
@@ -66,6 +67,7 @@ from glmav_observer.frames import rotate_flat
 from glmav_observer.ingest.samples import (
     AidingSample,
     AttitudeSample,
+    ControlSample,
     ImuSample,
     Sample,
     TruthSample,
@@ -99,6 +101,9 @@ class EstimatorConfig:
     gamma_full_max: float = 20.0
     #: learn the drag model while healthy and publish the ``aided`` estimate of a lost axis
     aero_aiding: bool = True
+    #: SERVO_OUTPUT_RAW's channel map for the cyclic regressors of the drag model
+    #: (``[estimation.aero_control]``; None: SERVO_OUTPUT_RAW is ignored)
+    aero_control: ControlMapping | None = None
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
@@ -125,7 +130,11 @@ class VehicleEstimator:
         self.switches: list[SwitchEvent] = []
         self.out = RecordBuilder(sysid, config.health_rate_hz)
         #: kept across restarts: what the vehicle's drag is does not change with a gap
-        self.aiding = LostAxisAiding(config.fdi.sigma_handover_mps) if config.aero_aiding else None
+        self.aiding = (
+            LostAxisAiding(config.fdi.sigma_handover_mps, control=config.aero_control)
+            if config.aero_aiding
+            else None
+        )
         self._seed: EstimatorSeed | None = None
         #: vehicle s between a seed's state and the sample it was applied at (None: none)
         self.seed_age_s: float | None = None
@@ -178,6 +187,10 @@ class VehicleEstimator:
             return out
         if isinstance(s, AidingSample):
             self._aiding_sample(s)
+            return out
+        if isinstance(s, ControlSample):
+            if self.aiding is not None:
+                self.aiding.hold_control(s.t_boot_s, s.servo_pwm_us)
             return out
         t = s.t_boot_s
         if self._seed is not None and t < self._seed.t_boot_s and not self._seed_ahead(t):
@@ -389,7 +402,7 @@ class VehicleEstimator:
         if j is None or j != self.sel.lost_idx or len(self.fdi.faulty_axes()) != 1:
             return  # (a second isolated axis would feed the model a faulty measurement)
         _, ned_l = self.bank.estimates_lists()
-        aiding.update(f_mean, e_flat, v_meas, self.sel.active_ned(ned_l, self.inputs.c_int)[j])
+        aiding.update(f_mean, e_flat, v_meas, self.sel.active_ned(ned_l, self.inputs.c_int)[j], t)
 
     def _lag_compensated(self, y_ned_mps: Vec3, l_now: tuple[float, float, float]) -> list[float]:
         """The measurement moved to the present by the fit's *observed* lag d̂ (|d̂| > 2σ,

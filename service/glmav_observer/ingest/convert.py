@@ -9,6 +9,8 @@ Units at the edge (MAVLink common.xml):
   vehicle (ArduPilot sends mG and mrad/s, the defaults of :class:`RawImuScale`).
 - ``LOCAL_POSITION_NED``: m, m/s (NED), ``time_boot_ms``.
 - ``SIM_STATE``: rad, m/s (NED); no time field.
+- ``SERVO_OUTPUT_RAW``: PWM µs per channel (:class:`ControlSample`); its uint32
+  ``time_usec`` wraps after 71.6 min, so it is stamped with the vehicle's latest time.
 - ``EKF_STATUS_REPORT`` (ArduPilot), ``GPS_RAW_INT``: what the autopilot's velocity rests
   on (:class:`AidingSample`); stamped with the vehicle's latest time, like ``SIM_STATE``.
 
@@ -26,6 +28,7 @@ from typing import Any
 from glmav_observer.ingest.samples import (
     AidingSample,
     AttitudeSample,
+    ControlSample,
     ImuSample,
     ImuSource,
     Sample,
@@ -50,11 +53,16 @@ SAMPLE_MESSAGES: frozenset[str] = frozenset(
         "SIM_STATE",
         "EKF_STATUS_REPORT",
         "GPS_RAW_INT",
+        "SERVO_OUTPUT_RAW",
     }
 )
 #: Messages without a usable vehicle time: stamped with the vehicle's latest time and not
 #: submitted to its clock (GPS_RAW_INT's time_usec is the receiver's, often UNIX time).
-UNTIMED_MESSAGES: frozenset[str] = frozenset({"SIM_STATE", "EKF_STATUS_REPORT", "GPS_RAW_INT"})
+UNTIMED_MESSAGES: frozenset[str] = frozenset(
+    {"SIM_STATE", "EKF_STATUS_REPORT", "GPS_RAW_INT", "SERVO_OUTPUT_RAW"}
+)
+#: SERVO_OUTPUT_RAW channels: 1-8, and 9-16 when the MAVLink 2 extension is present
+SERVO_CHANNELS = 16
 
 #: EKF_STATUS_REPORT flags (MAVLink ``ESTIMATOR_STATUS_FLAGS``).
 EKF_VELOCITY_HORIZ = 2
@@ -157,6 +165,11 @@ def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
         euler = _finite3((msg.roll, msg.pitch, msg.yaw), "SIM_STATE angles")
         vel3 = _finite3((msg.vn, msg.ve, msg.vd), "SIM_STATE velocity")
         return TruthSample(sysid, t_boot_s, euler, vel3)
+    if name == "SERVO_OUTPUT_RAW":
+        pwm = tuple(
+            int(getattr(msg, f"servo{i}_raw", 0) or 0) for i in range(1, SERVO_CHANNELS + 1)
+        )
+        return ControlSample(sysid, t_boot_s, pwm)
     if name == "EKF_STATUS_REPORT":
         flags = int(msg.flags)
         horiz = bool(flags & EKF_VELOCITY_HORIZ) and not flags & EKF_UNINITIALIZED

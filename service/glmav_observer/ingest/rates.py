@@ -42,6 +42,8 @@ MESSAGE_IDS: dict[str, int] = {
     # what the autopilot's velocity rests on (estimation/vehicle.py, "The autopilot's word")
     "EKF_STATUS_REPORT": mavlink_dialect.MAVLINK_MSG_ID_EKF_STATUS_REPORT,
     "GPS_RAW_INT": mavlink_dialect.MAVLINK_MSG_ID_GPS_RAW_INT,
+    # the actuator outputs: the drag model's cyclic regressors ([estimation.aero_control])
+    "SERVO_OUTPUT_RAW": mavlink_dialect.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
 }
 
 #: IMU messages: the estimator needs one of them.

@@ -80,4 +80,16 @@ class AidingSample:
     reason: str
 
 
-Sample = AttitudeSample | ImuSample | VelocitySample | TruthSample | AidingSample
+@dataclass(frozen=True, slots=True)
+class ControlSample:
+    """``SERVO_OUTPUT_RAW``: the autopilot's actuator outputs, PWM µs per channel
+    (``servo_pwm_us[0]`` is channel 1; 0 = unused). What a channel means is the vehicle's
+    (``estimation.aero.control.ControlMapping``). Its ``time_usec`` is a uint32 that wraps
+    every 71.6 min: stamped with the vehicle's latest time instead, like ``SIM_STATE``."""
+
+    sysid: int
+    t_boot_s: float
+    servo_pwm_us: tuple[int, ...]
+
+
+Sample = AttitudeSample | ImuSample | VelocitySample | TruthSample | AidingSample | ControlSample

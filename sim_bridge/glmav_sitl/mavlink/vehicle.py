@@ -12,6 +12,8 @@ SCALED_IMU          accel mG, gyro mrad/s (the message's fixed units), ``time_bo
 HIGHRES_IMU         accel m/s^2, gyro rad/s (float), ``fields_updated`` = 0x3F
 ATTITUDE            ZYX roll, pitch, yaw (rad) and body rates (rad/s) with noise
 LOCAL_POSITION_NED  x, y, z (m) and vx, vy, vz (m/s, NED) with noise and faults
+SERVO_OUTPUT_RAW    the commanded (Ω1, Ω2, δcx, δcy) on channels 1-4 as PWM µs
+                    (:mod:`glmav_sitl.mavlink.servo`); ``time_usec`` = sim time
 SIM_STATE           truth: q1..q4 = (w, x, y, z) body->NED; roll, pitch, yaw;
                     xacc.. = true specific force FRD (m/s^2); xgyro.. = true rates;
                     lat, lon (deg, float) / lat_int, lon_int (degE7) / alt (m AMSL)
@@ -59,6 +61,7 @@ from glmav_sitl.gcs import telemetry
 from glmav_sitl.gcs.autopilot import Autopilot, Mode
 from glmav_sitl.gcs.params import ParamError, ParamTable, default_params
 from glmav_sitl.mavlink.links import Link
+from glmav_sitl.mavlink.servo import servo_pwm_us
 from glmav_sitl.scenario import STREAM_IDS
 from glmav_sitl.simulator import Simulator, TruthState
 
@@ -331,6 +334,11 @@ class MavlinkVehicle:
             pos, vel = sim.position_sensor.sample(tr.t_s, tr.p_ned_m, tr.v_ned_mps)
             msg = mavlink2.MAVLink_local_position_ned_message(
                 t_ms, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2]
+            )
+        elif name == "servo_output_raw":
+            pwm = servo_pwm_us(sim.u, sim.params)  # the command: glmav_sitl.mavlink.servo
+            msg = mavlink2.MAVLink_servo_output_raw_message(
+                t_us & 0xFFFFFFFF, 0, pwm[0], pwm[1], pwm[2], pwm[3], 0, 0, 0, 0
             )
         elif name == "sim_state":
             lat = self._lat0 + math.degrees(tr.p_ned_m[0] / _EARTH_RADIUS_M)

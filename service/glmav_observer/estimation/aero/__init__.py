@@ -6,7 +6,11 @@ Two modules by concept:
   healthy, its own tests, and the pseudo-measurement of a lost axis;
 - :mod:`.aided`: :class:`AidedAxis`, the lost axis's one-state filter, and the two rules
   that keep it from being worse than dead reckoning (measured axes inconsistent with the
-  IMU; pseudo-measurements inconsistent with the dead reckoning).
+  IMU; pseudo-measurements inconsistent with the dead reckoning);
+- :mod:`.control`: :class:`~.control.ControlMapping`, the swash-plate cyclic regressors
+  (C1) from ``SERVO_OUTPUT_RAW``, the model's optional control term
+  (``DragModelConfig(control=True)``: then ``learn`` and ``update_from_model`` take
+  ``control=(ρ_x, ρ_y)``).
 
 Use from the estimator (per vehicle)::
 

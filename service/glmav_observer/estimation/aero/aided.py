@@ -213,6 +213,7 @@ class AidedAxis:
         v_meas_ned_mps: Sequence[float],
         *,
         relative_to_mps: float = 0.0,
+        control: tuple[float, float] | None = None,
     ) -> bool:
         """One velocity measurement during the loss: the measured axes are checked first
         (rule 1: a suspect measurement is not even turned into a pseudo-measurement, so it
@@ -226,7 +227,8 @@ class AidedAxis:
         reckoning kept elsewhere (the estimator's bank, propagated with the lost axis's
         acceleration set to 0 here), whose value now this is: the pseudo-measurement is
         fused as its difference from it, and a stop falls back to offset 0, that dead
-        reckoning itself."""
+        reckoning itself. ``control``: the cyclic regressors of a model that uses them
+        (:mod:`.control`)."""
         self.last_pm = None
         if self._measured_axes_suspect(v_meas_ned_mps):
             self.n_meas_suspect += 1
@@ -234,7 +236,11 @@ class AidedAxis:
         if self.stopped:
             return False
         self.last_pm = model.pseudo_measurement(
-            np.asarray(f_mean_body_mps2), E, np.asarray(v_meas_ned_mps), self.lost_axis
+            np.asarray(f_mean_body_mps2),
+            E,
+            np.asarray(v_meas_ned_mps),
+            self.lost_axis,
+            control=control,
         )
         pm = self.last_pm
         if pm is not None and relative_to_mps != 0.0:

@@ -17,6 +17,11 @@ linear in θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j):
 
     f_j = φ_jᵀ θ_j,   φ_j = (1, −r_j·v, r_j,n, r_j,e, −s_j|s_j|),  s_j = r_j·v       (A1)
 
+With ``DragModelConfig.control`` each row gains the swash-plate cyclic term b_j ρ_j of
+:mod:`.control` (C1): θ_j = (c_j, k_j, k_j·w_n, k_j·w_e, q_j, b_j), φ_j ends with ρ_j, and
+every call needs ρ (a sample without it is neither learnt nor used). Without it the model
+is the five-parameter one, computed with the same floats.
+
 The quadratic term is taken in the ground speed, not the airspeed (A2: exact without wind;
 with wind its cross term 2q·w·u is absorbed by the linear terms): taking it in the
 estimated airspeed makes the regression depend on its own output, which diverged on
@@ -88,6 +93,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from operator import mul
 from typing import NamedTuple
 
 import numpy as np
@@ -97,7 +103,8 @@ FloatArray = NDArray[np.float64]
 
 #: Number of parameters per body axis: (c, k, k·w_n, k·w_e, q).
 N_PARAM = 5
-#: Index of k (the linear drag coefficient) and q (the quadratic one) in θ.
+#: Index of k (the linear drag coefficient) and q (the quadratic one) in θ; with the
+#: cyclic regressor (``DragModelConfig.control``) its gain b is θ[N_PARAM].
 _K = 1
 _Q = 4
 
@@ -177,6 +184,12 @@ class DragModelConfig:
     max_gap_s: float = 5.0
     #: fit the quadratic term q_j·u_j|u_j| (A2); False: linear drag only
     quadratic: bool = True
+    #: a sixth parameter per body axis: the gain b_j of the swash-plate cyclic regressor
+    #: ρ_j (:mod:`.control`, (C1)); every learn and pseudo-measurement then needs ρ, and a
+    #: sample without it is neither learnt nor used. False: the drag model alone
+    control: bool = False
+    #: prior σ of b_j, m/s² per unit of ρ: uninformed (the default GLMAV's is 1.1)
+    prior_sigma_control: float = 5.0
 
 
 class PseudoMeasurement(NamedTuple):
@@ -203,14 +216,16 @@ class DragModel:
     def __init__(self, config: DragModelConfig | None = None) -> None:
         self.config = config or DragModelConfig()
         cfg = self.config
-        #: prior information Λ₀ = diag(1/σ_θ²), per axis (2, 5, 5)
-        self._lam0 = np.broadcast_to(
-            np.diag(1.0 / np.asarray(cfg.prior_sigma_theta) ** 2), (2, N_PARAM, N_PARAM)
-        ).copy()
+        #: parameters per body axis: the drag's N_PARAM, and b with the cyclic regressor
+        self.n_param = N_PARAM + (1 if cfg.control else 0)
+        n = self.n_param
+        sig0 = (*cfg.prior_sigma_theta, cfg.prior_sigma_control)[:n]
+        #: prior information Λ₀ = diag(1/σ_θ²), per axis (2, n, n)
+        self._lam0 = np.broadcast_to(np.diag(1.0 / np.asarray(sig0) ** 2), (2, n, n)).copy()
         #: θ and P = Λ⁻¹ = Cov(θ) per axis as plain floats (small fixed sizes: a learn call
         #: in Python floats costs less than ~40 numpy calls on 5-vectors); numpy views of
         #: them are built on demand (:attr:`_theta`, :attr:`_P`)
-        self._th: list[list[float]] = [[0.0] * N_PARAM for _ in range(2)]
+        self._th: list[list[float]] = [[0.0] * n for _ in range(2)]
         self._Pl: list[list[list[float]]] = np.linalg.inv(self._lam0).tolist()
         self._np_cache: tuple[FloatArray, FloatArray] | None = None
         #: Σ (1 − λ) since the prior was last put back (module docstring)
@@ -224,6 +239,8 @@ class DragModel:
         self._s2_sum = [0.0, 0.0]
         self._t_last_s: float | None = None
         self.n_learned = 0
+        #: samples not learnt because the cyclic regressor was missing (``control``)
+        self.n_no_control = 0
         #: samples not learnt as outliers (one-step residual > outlier_sigma σ)
         self.n_outliers = 0
         self._outlier_run = 0
@@ -247,15 +264,22 @@ class DragModel:
         f_body_mps2: FloatArray | tuple[float, float, float],
         E: FloatArray,
         v_ned_mps: FloatArray | tuple[float, float, float],
+        control: tuple[float, float] | None = None,
     ) -> None:
         """One healthy sample: mean specific force over the interval (FRD, m/s²), body→NED
-        rotation E (3×3) and the measured NED velocity (m/s). Non-finite input is ignored."""
+        rotation E (3×3) and the measured NED velocity (m/s); ``control`` the cyclic
+        regressors (ρ_x, ρ_y) of (C1) (:mod:`.control`), used (and needed) with
+        ``config.control``. Non-finite input is ignored."""
+        cfg = self.config
+        if cfg.control and control is None:
+            self.n_no_control += 1
+            return
         f = [float(x) for x in f_body_mps2]
         v = [float(x) for x in v_ned_mps]
         El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
-        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El))):
+        rho = (float(control[0]), float(control[1])) if cfg.control and control else None
+        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El)) + sum(rho or ())):
             return  # a NaN or infinity anywhere makes the sum non-finite
-        cfg = self.config
         sig_f = self._sigma_f_list()
         phis: list[list[float]] = []
         P_phis: list[list[float]] = []
@@ -269,25 +293,36 @@ class DragModel:
             self._outliers_recent *= math.exp(-gap / cfg.changing_window_s)
         self._t_seen_s = t_s
         for j in range(2):
-            # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), r_j the j-th column of E
+            # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), r_j the j-th column of E;
+            # (C1): and ρ_j with the cyclic regressor
             rn, re, rd = El[0][j], El[1][j], El[2][j]
             sj = rn * v[0] + re * v[1] + rd * v[2]
             phi = [1.0, -sj, rn, re, -sj * abs(sj) if cfg.quadratic else 0.0]
             P = self._Pl[j]
-            P_phi = [
-                Pa[0] * phi[0] + Pa[1] * phi[1] + Pa[2] * phi[2] + Pa[3] * phi[3] + Pa[4] * phi[4]
-                for Pa in P
-            ]
             th = self._th[j]
-            # one-step-ahead residual with the previous θ
-            e = f[j] - (th[0] + th[1] * phi[1] + th[2] * rn + th[3] * re + th[4] * phi[4])
-            pPp = (
-                phi[0] * P_phi[0]
-                + phi[1] * P_phi[1]
-                + phi[2] * P_phi[2]
-                + phi[3] * P_phi[3]
-                + phi[4] * P_phi[4]
-            )
+            if rho is None:  # the drag alone: written out (a third of learn's cost)
+                P_phi = [
+                    Pa[0] * phi[0]
+                    + Pa[1] * phi[1]
+                    + Pa[2] * phi[2]
+                    + Pa[3] * phi[3]
+                    + Pa[4] * phi[4]
+                    for Pa in P
+                ]
+                # one-step-ahead residual with the previous θ
+                e = f[j] - (th[0] + th[1] * phi[1] + th[2] * rn + th[3] * re + th[4] * phi[4])
+                pPp = (
+                    phi[0] * P_phi[0]
+                    + phi[1] * P_phi[1]
+                    + phi[2] * P_phi[2]
+                    + phi[3] * P_phi[3]
+                    + phi[4] * P_phi[4]
+                )
+            else:
+                phi.append(rho[j])
+                P_phi = [sum(map(mul, Pa, phi)) for Pa in P]
+                e = f[j] - sum(map(mul, th, phi))
+                pPp = sum(map(mul, phi, P_phi))
             var_f = sig_f[j] ** 2
             if trusted and e * e > cfg.outlier_sigma**2 * (var_f + pPp):
                 outlier = True
@@ -299,7 +334,7 @@ class DragModel:
         self._two_row_n = 0
         self._inconsistency = 0.0
         if trusted and self.n_learned % cfg.validate_every == 0:
-            self._validate(t_s, np.asarray(f), np.asarray(El), np.asarray(v))
+            self._validate(t_s, np.asarray(f), np.asarray(El), np.asarray(v), rho)
         if outlier:
             self.n_outliers += 1
             self._outlier_run += 1
@@ -334,17 +369,23 @@ class DragModel:
             ge = g * e
             self._th[j] = [t + ge * pa for t, pa in zip(self._th[j], P_phi, strict=True)]
             c = inv_l * inv_l / denom
-            p0, p1, p2, p3, p4 = P_phi
-            self._Pl[j] = [
-                [
-                    Pr[0] * inv_l - ca * p0,
-                    Pr[1] * inv_l - ca * p1,
-                    Pr[2] * inv_l - ca * p2,
-                    Pr[3] * inv_l - ca * p3,
-                    Pr[4] * inv_l - ca * p4,
+            if rho is None:
+                p0, p1, p2, p3, p4 = P_phi
+                self._Pl[j] = [
+                    [
+                        Pr[0] * inv_l - ca * p0,
+                        Pr[1] * inv_l - ca * p1,
+                        Pr[2] * inv_l - ca * p2,
+                        Pr[3] * inv_l - ca * p3,
+                        Pr[4] * inv_l - ca * p4,
+                    ]
+                    for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
                 ]
-                for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
-            ]
+            else:
+                self._Pl[j] = [
+                    [pr * inv_l - ca * pk for pr, pk in zip(Pr, P_phi, strict=True)]
+                    for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+                ]
         self._prior_due = lam * self._prior_due + (1.0 - lam)
         self.n_learned += 1
         self._np_cache = None
@@ -364,11 +405,18 @@ class DragModel:
         self._prior_due = 0.0
         self._np_cache = None
 
-    def _validate(self, t_s: float, f: FloatArray, E: FloatArray, v: FloatArray) -> None:
+    def _validate(
+        self,
+        t_s: float,
+        f: FloatArray,
+        E: FloatArray,
+        v: FloatArray,
+        control: tuple[float, float] | None,
+    ) -> None:
         """One axis in turn: how far the pseudo-measurement is from the measurement."""
         cfg = self.config
         axis = (self.n_learned // cfg.validate_every) % 3
-        pm = self.pseudo_measurement(f, E, v, axis, validated=False)
+        pm = self.pseudo_measurement(f, E, v, axis, validated=False, control=control)
         if pm is None:
             return
         t_last = self._nees_t_s[axis]
@@ -407,7 +455,8 @@ class DragModel:
     # ------------------------------------------------------------------ state
     @property
     def theta(self) -> FloatArray:
-        """θ per body axis (2, 5): (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m)."""
+        """θ per body axis (2, n_param): (c m/s², k 1/s, k·w_n m/s², k·w_e m/s², q 1/m) and,
+        with ``config.control``, b (m/s² per unit of ρ, (C1))."""
         return self._theta.copy()
 
     def _sigma_f_list(self) -> list[float]:
@@ -430,7 +479,7 @@ class DragModel:
 
     @property
     def cov_theta(self) -> FloatArray:
-        """Covariance of θ per body axis (2, 5, 5): Λ⁻¹."""
+        """Covariance of θ per body axis (2, n_param, n_param): Λ⁻¹."""
         out: FloatArray = np.array(self._P, dtype=np.float64)
         return out
 
@@ -555,19 +604,25 @@ class DragModel:
         row_min: float = 0.2,
         sigma_max_mps: float = 1.0,
         validated: bool = True,
+        control: tuple[float, float] | None = None,
     ) -> PseudoMeasurement | None:
         """The lost NED axis (0 n, 1 e, 2 d) from the two body drag equations (module
         docstring), or None (untrusted model, axis unobservable at this attitude, σ too
         large). ``v_ned_known_mps[lost_axis]`` is ignored; the other two are measured with
         noise σ ``sigma_v_known_mps``. ``validated``: only for an axis whose validation
-        while healthy passed, σ inflated by √NEES when that is above 1."""
+        while healthy passed, σ inflated by √NEES when that is above 1. ``control``: the
+        cyclic regressors (ρ_x, ρ_y) of (C1), needed with ``config.control`` (None then:
+        no pseudo-measurement)."""
         if lost_axis not in (0, 1, 2):
             raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
+        if self.config.control and control is None:
+            return None
+        rho = (float(control[0]), float(control[1])) if self.config.control and control else None
         f = [float(x) for x in f_body_mps2]
         v = [float(x) for x in v_ned_known_mps]
         v[lost_axis] = 0.0
         El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
-        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El))):
+        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El)) + sum(rho or ())):
             return None
         cfg = self.config
         scale = 1.0
@@ -590,11 +645,13 @@ class DragModel:
             r_lost = r[lost_axis]
             if not ok[j] or abs(r_lost) < row_min:
                 continue
-            c, k, kwn, kwe, q = self._th[j]
-            # (A2): f_j = a_j − k s_j − q s_j|s_j| with a_j = c + r_n k·w_n + r_e k·w_e;
-            # solve for s_j = r_j·v (monotone while k + 2q|s| > 0): the root of the
-            # quadratic on the sign branch of the linear solution
+            c, k, kwn, kwe, q = self._th[j][:N_PARAM]
+            # (A2): f_j = a_j − k s_j − q s_j|s_j| with a_j = c + r_n k·w_n + r_e k·w_e
+            # (+ b_j ρ_j, (C1)); solve for s_j = r_j·v (monotone while k + 2q|s| > 0): the
+            # root of the quadratic on the sign branch of the linear solution
             a_j = c + r[0] * kwn + r[1] * kwe - f[j]
+            if rho is not None:
+                a_j += self._th[j][N_PARAM] * rho[j]
             s_j = a_j / k
             if q != 0.0:
                 sg = 1.0 if s_j >= 0.0 else -1.0
@@ -606,11 +663,13 @@ class DragModel:
                 continue
             g2 = (slope * r_lost) ** 2  # (∂f_j/∂v_L)²
             v_j = (s_j - sum(r[i] * v[i] for i in known)) / r_lost
-            phi = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
+            phi: tuple[float, ...] = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
+            if rho is not None:
+                phi = (*phi, rho[j])
             P = self._Pl[j]
+            n_p = len(phi)
             var_model = (
-                sum(phi[a] * sum(P[a][b] * phi[b] for b in range(N_PARAM)) for a in range(N_PARAM))
-                / g2
+                sum(phi[a] * sum(P[a][b] * phi[b] for b in range(n_p)) for a in range(n_p)) / g2
             )
             var_white = (
                 sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
