@@ -130,7 +130,7 @@ class Flight:
 
 def tlog_samples(data: bytes, sysid: int = 1) -> list[Sample]:
     """The samples the service's ingest makes of tlog bytes (one vehicle)."""
-    ingest = Ingest(IngestConfig())
+    ingest = Ingest(IngestConfig(control_samples=True))
     out: list[Sample] = []
     for rec in iter_tlog(data):
         for ev in ingest.on_message(rec.msg, rec.t_host_us * 1e-6):

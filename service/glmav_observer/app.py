@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import logging
 import math
 import select
@@ -71,7 +72,9 @@ class Service:
         self.sinks: list[Sink] = list(sinks)
         #: sinks isolated after a write failed: (sink class name, error)
         self.failed_sinks: list[tuple[str, str]] = []
-        self.ingest = Ingest(config.ingest)
+        # control samples only for the cyclic regressors that use them (else ignored)
+        control = config.estimation.aero_control is not None
+        self.ingest = Ingest(dataclasses.replace(config.ingest, control_samples=control))
         self.estimators: dict[int, VehicleEstimator] = {}
         self._retired: dict[int, VehicleEstimator] = {}
         self.decoders: dict[str, FrameDecoder] = {}

@@ -113,6 +113,9 @@ class IngestConfig:
     #: Vehicle seconds a sample is held so that samples jittered out of order on the link
     #: are released in vehicle-time order (0: none, samples are processed on arrival).
     reorder_window_s: float = 0.0
+    #: SERVO_OUTPUT_RAW as control samples (the cyclic regressors of the lost-axis aiding,
+    #: ``[estimation.aero_control]``); off, it is ignored like any other message.
+    control_samples: bool = False
 
 
 @dataclass
@@ -141,6 +144,10 @@ class Ingest:
 
     def __init__(self, config: IngestConfig) -> None:
         self.config = config
+        #: the messages that become samples
+        self.consumed: frozenset[str] = (
+            SAMPLE_MESSAGES if config.control_samples else SAMPLE_MESSAGES - {"SERVO_OUTPUT_RAW"}
+        )
         self.vehicles: dict[int, VehicleInput] = {}
         #: counters not attributable to an admitted vehicle
         self.counters: collections.Counter[str] = collections.Counter()
@@ -212,7 +219,7 @@ class Ingest:
             return []
         if name == "HEARTBEAT":
             return self._heartbeat(msg, sysid, v, t_host_s)
-        if name not in SAMPLE_MESSAGES:
+        if name not in self.consumed:
             self.counters["ignored_messages"] += 1
             return []
         events: list[IngestEvent] = []

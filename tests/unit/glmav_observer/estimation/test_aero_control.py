@@ -26,7 +26,7 @@ def _decoded(msg: Any) -> Any:
 
 
 def test_servo_output_raw_becomes_a_control_sample_at_the_vehicles_latest_time() -> None:
-    ing = Ingest(IngestConfig())
+    ing = Ingest(IngestConfig(control_samples=True))
     att = dialect.MAVLink_attitude_message(2500, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     ing.on_message(_decoded(att), 0.0)
     # time_usec 7 s is ignored (a uint32 that wraps): stamped with the latest time, 2.5 s
