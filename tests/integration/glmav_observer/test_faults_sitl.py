@@ -54,12 +54,13 @@ def test_fault_isolated_and_handed_over(
 def ten_minute_tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """600 s of the gusts scenario, SITL as fast as possible, written to a tlog (cached).
 
-    The SITL's RAW_IMU and SCALED_IMU streams are switched off in its config (the service
-    uses HIGHRES_IMU and drops the others): half the messages to simulate and replay.
+    The SITL's RAW_IMU, SCALED_IMU and SERVO_OUTPUT_RAW streams are switched off in its
+    config (the service uses HIGHRES_IMU and, by default, no actuator outputs): half the
+    messages to simulate and replay.
     """
     d = tmp_path_factory.mktemp("sitl")
     sitl_toml = data_path("sitl.toml").read_text(encoding="utf-8")
-    sitl_toml = re.sub(r"(?m)^(raw_imu|scaled_imu) = .*$", r"\1 = 0.0", sitl_toml)
+    sitl_toml = re.sub(r"(?m)^(raw_imu|scaled_imu|servo_output_raw) = .*$", r"\1 = 0.0", sitl_toml)
     (d / "sitl.toml").write_text(sitl_toml, encoding="utf-8")
     path = d / "gusts-600s.tlog"
     subprocess.run(
