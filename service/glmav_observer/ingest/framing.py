@@ -37,6 +37,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink_dialect
 
+from glmav_observer.ingest.convert import SAMPLE_MESSAGES
+
 logger = logging.getLogger(__name__)
 
 MAGIC_V1 = 0xFE
@@ -200,6 +202,110 @@ def _frame_length(buf: bytes | bytearray, p: int, n: int) -> int | None:
     return _HEADER_V1 + buf[p + 1] + 2
 
 
+def mavlink_crc16(data: bytes | bytearray) -> int:
+    """MAVLink's checksum (CRC-16/MCRF4XX) of ``data``: the dialect's C implementation
+    (fastcrc) when pymavlink found it, else its pure-Python one."""
+    fast = mavlink_dialect.mcrf4xx
+    if fast is not None:
+        return int(fast(bytes(data), 0xFFFF))
+    return int(mavlink_dialect.x25crc(data).crc)
+
+
+@dataclass(frozen=True, slots=True)
+class FastSpec:
+    """How to decode one message id without pymavlink's generic ``decode``: everything
+    comes from pymavlink's generated class (its wire-order field names, its precompiled
+    ``struct.Struct``, its CRC extra) and a prototype instance (the attributes its
+    constructor sets, in their order)."""
+
+    msg_class: Any  # a pymavlink MAVLink_*_message class (pymavlink has no stubs)
+    crc_extra: int
+    unpack_from: Callable[[bytes | bytearray, int], tuple[Any, ...]]
+    payload_len: int
+    wire_names: tuple[str, ...]
+    template: dict[str, Any]
+
+
+def fast_spec(msg_id: int) -> FastSpec | None:
+    """The fast decoding of ``msg_id``, or None where pymavlink's ``decode`` must stay
+    (unknown id, array or string fields: those it post-processes)."""
+    cls = mavlink_dialect.mavlink_map.get(msg_id)
+    if cls is None or any(n != 1 for n in cls.lengths):
+        return None
+    if any(t.startswith("char") for t in cls.fieldtypes):
+        return None
+    proto = cls(*(0 for _ in cls.fieldnames))
+    return FastSpec(
+        msg_class=cls,
+        crc_extra=cls.crc_extra,
+        unpack_from=cls.unpacker.unpack_from,
+        payload_len=cls.unpacker.size,
+        wire_names=tuple(cls.ordered_fieldnames),
+        template=dict(proto.__dict__),
+    )
+
+
+#: The messages the service consumes (ingest/pipeline.py): decoded by :meth:`FrameDecoder.
+#: _fast_decode` when they come as unsigned MAVLink 2; a message added to the ingest (to
+#: ``SAMPLE_MESSAGES``) joins this table, and any other id falls back to pymavlink.
+FAST_DECODE_MESSAGES: frozenset[str] = SAMPLE_MESSAGES | {"HEARTBEAT", "SYSTEM_TIME"}
+
+
+def _fast_table() -> dict[int, FastSpec]:
+    if mavlink_dialect.MAVLINK_IGNORE_CRC:  # pymavlink told to accept bad CRCs: its path
+        return {}
+    table: dict[int, FastSpec] = {}
+    for name in sorted(FAST_DECODE_MESSAGES):
+        msg_id = getattr(mavlink_dialect, f"MAVLINK_MSG_ID_{name}", None)
+        spec = None if msg_id is None else fast_spec(msg_id)
+        if msg_id is not None and spec is not None:
+            table[msg_id] = spec
+    return table
+
+
+#: message id -> its fast decoding (see :data:`FAST_DECODE_MESSAGES`)
+FAST_DECODE: dict[int, FastSpec] = _fast_table()
+
+_MAVLinkHeader = mavlink_dialect.MAVLink_header
+
+
+def fast_decode(frame: bytearray) -> MavMessage | None:
+    """The message of an unsigned MAVLink 2 ``frame`` (whole, length already checked by
+    the framing) whose id is in :data:`FAST_DECODE`, built as pymavlink's ``decode``
+    builds it (the same class, attributes, values and their order), or None for any
+    other frame and for a bad CRC: pymavlink's ``decode`` then decides and names the
+    rejection. MAVLink 2 drops a payload's trailing zero bytes: padded back here."""
+    if frame[0] != MAGIC_V2 or frame[2]:
+        return None
+    msg_id = frame[7] | frame[8] << 8 | frame[9] << 16
+    spec = FAST_DECODE.get(msg_id)
+    mlen = frame[1]
+    end = _HEADER_V2 + mlen
+    if spec is None or len(frame) != end + 2:
+        return None
+    body = frame[1:end]
+    body.append(spec.crc_extra)
+    crc = frame[end] | frame[end + 1] << 8
+    if mavlink_crc16(body) != crc:
+        return None
+    size = spec.payload_len
+    if mlen >= size:
+        values = spec.unpack_from(frame, _HEADER_V2)
+    else:
+        values = spec.unpack_from(bytes(frame[_HEADER_V2:end]) + bytes(size - mlen), 0)
+    msg = spec.msg_class.__new__(spec.msg_class)
+    d = msg.__dict__
+    d.update(spec.template)
+    d.update(zip(spec.wire_names, values, strict=True))
+    # what pymavlink's decode sets after construction (``_payload`` from byte 6, as it does)
+    d["_signed"] = False
+    d["_msgbuf"] = frame
+    d["_payload"] = frame[6:-2]
+    d["_crc"] = crc
+    d["_header"] = _MAVLinkHeader(msg_id, 0, frame[3], mlen, frame[4], frame[5], frame[6])
+    return msg
+
+
 #: byte size of a MAVLink field type (the prefilter reads a payload's first field)
 _FIELD_SIZE = {"uint64_t": 8, "int64_t": 8, "uint32_t": 4, "int32_t": 4, "uint16_t": 2}
 
@@ -249,6 +355,10 @@ class FrameDecoder:
     def _try_decode(self, frame: bytearray) -> tuple[MavMessage | None, str | None]:
         if frame[0] == MAGIC_V2 and frame[2] & ~_IFLAG_SIGNED:
             return None, "bad_header"  # unknown incompatibility flags: cannot be parsed
+        if self._signing_key is None:
+            fast = fast_decode(frame)
+            if fast is not None:
+                return fast, None
         try:
             msg = self._mav.decode(frame)
         except mavlink_dialect.MAVError as err:
@@ -309,7 +419,7 @@ class FrameDecoder:
         end = p + length - 2
         body = buf[p + 1 : end]
         body.append(crc_extra)
-        if mavlink_dialect.x25crc(body).crc != buf[end] | buf[end + 1] << 8:
+        if mavlink_crc16(body) != buf[end] | buf[end + 1] << 8:
             return False  # the full path counts the rejection
         # MAVLink 2 drops a payload's trailing zero bytes: a short field reads as zero
         first = int.from_bytes(buf[p + hdr : min(p + hdr + t_size, end)], "little")
