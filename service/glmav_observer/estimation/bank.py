@@ -66,8 +66,14 @@ def _gammas(gamma_per_config: Mapping[str, float] | None) -> tuple[float, ...]:
 
 
 def _vec3(name: str, value: ArrayLike) -> list[float]:
-    if type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64:
-        fast: list[float] = value.tolist()  # the common case, ~0.1 µs
+    if isinstance(value, (tuple, list)) and len(value) == 3:
+        # the estimator's inputs: three Python floats, returned as they are (what
+        # np.asarray(...).tolist() returns too, after two conversions)
+        v0, v1, v2 = value
+        if type(v0) is float and type(v1) is float and type(v2) is float:
+            return [v0, v1, v2]
+    elif type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64:
+        fast: list[float] = value.tolist()  # ~0.1 µs
         return fast
     arr = np.asarray(value, dtype=np.float64)
     if arr.shape != (3,):
@@ -387,7 +393,9 @@ class ObserverBank:
             raise ValueError(f"dt_s must be >= 0, got {h!r}")
         masks = self._masks(y, meas_mask)
         self._masks_last = masks
-        if self.e_form == "exact" and all(m[0] + m[1] + m[2] >= 2 for m in masks):
+        if self.e_form == "exact" and (
+            masks is _STANDARD_MASKS or all(m[0] + m[1] + m[2] >= 2 for m in masks)
+        ):
             self._step_exact_fast(h, eul, w, f, y, masks)
         else:
             self._step_numpy(h, eul, w, f, y, masks)
