@@ -274,7 +274,7 @@ def fast_decode(frame: bytearray) -> MavMessage | None:
     the framing) whose id is in :data:`FAST_DECODE`, built as pymavlink's ``decode``
     builds it (the same class, attributes, values and their order), or None for any
     other frame and for a bad CRC: pymavlink's ``decode`` then decides and names the
-    rejection. MAVLink 2 drops a payload's trailing zero bytes: padded back here."""
+    rejection."""
     if frame[0] != MAGIC_V2 or frame[2]:
         return None
     msg_id = frame[7] | frame[8] << 8 | frame[9] << 16
@@ -288,11 +288,20 @@ def fast_decode(frame: bytearray) -> MavMessage | None:
     crc = frame[end] | frame[end + 1] << 8
     if mavlink_crc16(body) != crc:
         return None
+    return _fast_message(spec, frame, msg_id, crc)
+
+
+def _fast_message(spec: FastSpec, frame: bytearray, msg_id: int, crc: int) -> MavMessage:
+    """:func:`fast_decode`'s message, the frame checked (unsigned MAVLink 2, its length,
+    its CRC). MAVLink 2 drops a payload's trailing zero bytes: padded back here."""
+    mlen = frame[1]
     size = spec.payload_len
     if mlen >= size:
         values = spec.unpack_from(frame, _HEADER_V2)
     else:
-        values = spec.unpack_from(bytes(frame[_HEADER_V2:end]) + bytes(size - mlen), 0)
+        values = spec.unpack_from(
+            bytes(frame[_HEADER_V2 : _HEADER_V2 + mlen]) + bytes(size - mlen), 0
+        )
     msg = spec.msg_class.__new__(spec.msg_class)
     d = msg.__dict__
     d.update(spec.template)
@@ -426,12 +435,48 @@ class FrameDecoder:
         assert self.prefilter is not None
         return self.prefilter(sysid, compid, msgid, first, t_host_s)
 
+    def _feed_one(self, data: bytes | bytearray, t_host_s: float) -> list[MavMessage] | None:
+        """A datagram that is exactly one valid unsigned MAVLink 2 frame of a message in
+        :data:`FAST_DECODE` (what vehicles send): what :meth:`feed`'s loop returns and
+        counts for it, with its CRC computed once for the prefilter and the decoding.
+        None for any other datagram: the loop decides."""
+        n = len(data)
+        if n < _HEADER_V2 + 2 or data[0] != MAGIC_V2 or data[2] or n != _HEADER_V2 + data[1] + 2:
+            return None
+        msg_id = data[7] | data[8] << 8 | data[9] << 16
+        spec = FAST_DECODE.get(msg_id)
+        if spec is None:
+            return None
+        end = n - 2
+        body = bytearray(data[1:end])
+        body.append(spec.crc_extra)
+        crc = data[end] | data[end + 1] << 8
+        if mavlink_crc16(body) != crc:
+            return None
+        prefilter = self.prefilter
+        if prefilter is not None:
+            pre = self.prefilter_ids.get(msg_id)
+            if pre is not None:
+                # as _prefiltered: the first field, a short (zero-truncated) one reads as zero
+                first = int.from_bytes(data[_HEADER_V2 : min(_HEADER_V2 + pre[1], end)], "little")
+                if prefilter(data[5], data[6], msg_id, first, t_host_s):
+                    self.counters.add("frames_ok")
+                    self.prefiltered += 1
+                    return []
+        msg = _fast_message(spec, bytearray(data), msg_id, crc)
+        self.counters.add("frames_ok")
+        return [msg]
+
     def feed(self, data: bytes | bytearray, t_host_s: float = 0.0) -> list[MavMessage]:
         """Add bytes; return the messages completed by them (in order).
 
         In datagram mode ``data`` is one whole datagram and nothing carries over.
         ``t_host_s`` (arrival) is passed to :attr:`prefilter`.
         """
+        if self._datagram and self._signing_key is None:
+            one = self._feed_one(data, t_host_s)
+            if one is not None:
+                return one
         buf = self._buf
         buf.extend(data)
         out: list[MavMessage] = []

@@ -18,6 +18,8 @@ from glmav_observer.ingest.framing import (
     fast_decode,
     mavlink_crc16,
 )
+from glmav_observer.ingest.pipeline import IMU_MESSAGE_IDS, Ingest, IngestConfig
+from glmav_testkit.fuzzgen import KINDS, CaseMaker, sitl_stream
 
 #: the messages ingest/pipeline.py reads: each must have its fast entry
 CONSUMED = (
@@ -112,3 +114,43 @@ def test_signed_frames_are_not_taken() -> None:
     unsigned = _frame(dialect.MAVLINK_MSG_ID_ATTITUDE, bytes(28))
     assert dec.feed(unsigned) == []  # with a key, an unsigned frame is refused as before
     assert dec.counters.as_dict() == {"frames_ok": 1, "unsigned": 1}
+
+
+def test_one_frame_datagrams_as_the_loop_decides_them() -> None:
+    """:meth:`FrameDecoder._feed_one` (a datagram of one fast frame: one CRC for the
+    prefilter and the decoding) against :meth:`FrameDecoder.feed`'s loop alone, on the
+    simulator's stream with every damaged case of the fuzz benchmark interleaved (sent
+    as the vehicle): the same messages, events, counters and superseded IMU frames."""
+    stream = sitl_stream("cruise", 3.0, seed=2)
+    maker = CaseMaker(stream.frames, b"", seed=5, vehicle_safe=False)
+    kinds = [k for k in KINDS if k != "real_corrupt"]
+    rng = random.Random(9)
+    datagrams: list[bytes] = []
+    for f in stream.frames:
+        datagrams.append(f)
+        if rng.random() < 0.2:
+            datagrams.append(maker.make(rng.choice(kinds))[1])
+
+    def run(fast: bool) -> tuple[list[Any], Ingest, FrameDecoder]:
+        ingest = Ingest(IngestConfig())
+        dec = FrameDecoder(datagram=True)
+        dec.set_prefilter(ingest.skip_superseded, IMU_MESSAGE_IDS)
+        if not fast:
+            dec._feed_one = lambda data, t: None  # type: ignore[method-assign]
+        seen: list[Any] = []
+        for i, d in enumerate(datagrams):
+            for msg in dec.feed(d, i * 1e-3):
+                seen.append(_state(msg))
+                seen.append(repr(ingest.on_message(msg, i * 1e-3)))
+        return seen, ingest, dec
+
+    seen_fast, ingest_fast, dec_fast = run(True)
+    seen_loop, ingest_loop, dec_loop = run(False)
+    assert dec_fast.prefiltered == dec_loop.prefiltered > 1000  # 2 of 3 IMU streams
+    assert seen_fast == seen_loop
+    assert dec_fast.counters.as_dict() == dec_loop.counters.as_dict()
+    assert dec_fast.counters.rejected_frames > 50  # the damage reached the decoder
+    assert ingest_fast.counters == ingest_loop.counters
+    assert {s: v.counters for s, v in ingest_fast.vehicles.items()} == {
+        s: v.counters for s, v in ingest_loop.vehicles.items()
+    }
