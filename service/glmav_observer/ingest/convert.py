@@ -99,7 +99,7 @@ def message_time_us(msg: Any) -> tuple[int, TimeKind]:
 
 
 def _finite3(values: tuple[float, float, float], what: str) -> Vec3:
-    x, y, z = (float(v) for v in values)
+    x, y, z = float(values[0]), float(values[1]), float(values[2])
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         raise ConversionError("nan_field", f"{what} not finite: {values}")
     return (x, y, z)
