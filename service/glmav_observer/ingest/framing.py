@@ -202,13 +202,20 @@ def _frame_length(buf: bytes | bytearray, p: int, n: int) -> int | None:
     return _HEADER_V1 + buf[p + 1] + 2
 
 
-def mavlink_crc16(data: bytes | bytearray) -> int:
-    """MAVLink's checksum (CRC-16/MCRF4XX) of ``data``: the dialect's C implementation
-    (fastcrc) when pymavlink found it, else its pure-Python one."""
+def frame_crc(frame: bytes | bytearray, start: int, end: int, crc_extra: int) -> int:
+    """MAVLink's checksum (CRC-16/MCRF4XX) of the frame at ``start`` (its bytes after the
+    magic up to ``end``, the end of its payload) followed by the message's CRC extra:
+    the dialect's C implementation (fastcrc) when pymavlink found it, else its
+    pure-Python one."""
     fast = mavlink_dialect.mcrf4xx
     if fast is not None:
-        return int(fast(bytes(data), 0xFFFF))
-    return int(mavlink_dialect.x25crc(data).crc)
+        return int(fast(_EXTRA_BYTE[crc_extra], fast(frame[start + 1 : end], 0xFFFF)))
+    body = bytearray(frame[start + 1 : end])
+    body.append(crc_extra)
+    return int(mavlink_dialect.x25crc(body).crc)
+
+
+_EXTRA_BYTE = [bytes([i]) for i in range(256)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,10 +290,8 @@ def fast_decode(frame: bytearray) -> MavMessage | None:
     end = _HEADER_V2 + mlen
     if spec is None or len(frame) != end + 2:
         return None
-    body = frame[1:end]
-    body.append(spec.crc_extra)
     crc = frame[end] | frame[end + 1] << 8
-    if mavlink_crc16(body) != crc:
+    if frame_crc(frame, 0, end, spec.crc_extra) != crc:
         return None
     return _fast_message(spec, frame, msg_id, crc)
 
@@ -303,8 +308,7 @@ def _fast_message(spec: FastSpec, frame: bytearray, msg_id: int, crc: int) -> Ma
             bytes(frame[_HEADER_V2 : _HEADER_V2 + mlen]) + bytes(size - mlen), 0
         )
     msg = spec.msg_class.__new__(spec.msg_class)
-    d = msg.__dict__
-    d.update(spec.template)
+    d = dict(spec.template)  # the constructor's attributes, in its order
     d.update(zip(spec.wire_names, values, strict=True))
     # what pymavlink's decode sets after construction (``_payload`` from byte 6, as it does)
     d["_signed"] = False
@@ -312,6 +316,7 @@ def _fast_message(spec: FastSpec, frame: bytearray, msg_id: int, crc: int) -> Ma
     d["_payload"] = frame[6:-2]
     d["_crc"] = crc
     d["_header"] = _MAVLinkHeader(msg_id, 0, frame[3], mlen, frame[4], frame[5], frame[6])
+    msg.__dict__ = d
     return msg
 
 
@@ -426,9 +431,7 @@ class FrameDecoder:
             return False
         crc_extra, t_size = spec
         end = p + length - 2
-        body = buf[p + 1 : end]
-        body.append(crc_extra)
-        if mavlink_crc16(body) != buf[end] | buf[end + 1] << 8:
+        if frame_crc(buf, p, end, crc_extra) != buf[end] | buf[end + 1] << 8:
             return False  # the full path counts the rejection
         # MAVLink 2 drops a payload's trailing zero bytes: a short field reads as zero
         first = int.from_bytes(buf[p + hdr : min(p + hdr + t_size, end)], "little")
@@ -448,10 +451,8 @@ class FrameDecoder:
         if spec is None:
             return None
         end = n - 2
-        body = bytearray(data[1:end])
-        body.append(spec.crc_extra)
         crc = data[end] | data[end + 1] << 8
-        if mavlink_crc16(body) != crc:
+        if frame_crc(data, 0, end, spec.crc_extra) != crc:
             return None
         prefilter = self.prefilter
         if prefilter is not None:

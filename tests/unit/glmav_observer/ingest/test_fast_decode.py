@@ -16,7 +16,7 @@ from glmav_observer.ingest.framing import (
     FAST_DECODE_MESSAGES,
     FrameDecoder,
     fast_decode,
-    mavlink_crc16,
+    frame_crc,
 )
 from glmav_observer.ingest.pipeline import IMU_MESSAGE_IDS, Ingest, IngestConfig
 from glmav_testkit.fuzzgen import KINDS, CaseMaker, sitl_stream
@@ -41,8 +41,9 @@ def _frame(msg_id: int, payload: bytes, *, seq: int = 7, sysid: int = 3, compid:
     crc_extra = dialect.mavlink_map[msg_id].crc_extra
     body = bytes([len(payload), 0, 0, seq, sysid, compid, msg_id & 0xFF, (msg_id >> 8) & 0xFF])
     body += bytes([msg_id >> 16]) + payload
-    crc = mavlink_crc16(body + bytes([crc_extra]))
-    return b"\xfd" + body + bytes([crc & 0xFF, crc >> 8])
+    frame = b"\xfd" + body
+    crc = frame_crc(frame, 0, len(frame), crc_extra)
+    return frame + bytes([crc & 0xFF, crc >> 8])
 
 
 def _state(msg: Any) -> tuple[Any, ...]:
@@ -154,3 +155,13 @@ def test_one_frame_datagrams_as_the_loop_decides_them() -> None:
     assert {s: v.counters for s, v in ingest_fast.vehicles.items()} == {
         s: v.counters for s, v in ingest_loop.vehicles.items()
     }
+
+
+def test_frame_crc_without_fastcrc_is_the_same(monkeypatch: pytest.MonkeyPatch) -> None:
+    """pymavlink without fastcrc: its pure-Python CRC gives the same checksums."""
+    rng = random.Random(3)
+    frames = [rng.randbytes(rng.randrange(12, 60)) for _ in range(50)]
+    with_c = [frame_crc(f, 0, len(f) - 2, i % 256) for i, f in enumerate(frames)]
+    monkeypatch.setattr(dialect, "mcrf4xx", None)  # what pymavlink sets without fastcrc
+    monkeypatch.setattr(dialect, "x25crc", dialect._x25crc_slow)
+    assert [frame_crc(f, 0, len(f) - 2, i % 256) for i, f in enumerate(frames)] == with_c
