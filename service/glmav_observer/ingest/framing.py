@@ -14,6 +14,16 @@ checks the CRC with the message's CRC-extra):
   end of a datagram are a truncated frame and are dropped; in stream mode (TCP,
   serial) they wait for more bytes.
 
+Fast decode. The messages the service consumes (:data:`FAST_DECODE_MESSAGES`: the sample
+messages of ``ingest/convert.py``, ``HEARTBEAT``, ``SYSTEM_TIME``), when they come as
+unsigned MAVLink 2, are decoded without ``MAVLink.decode``'s generic path: the payload
+(zero-truncation padded back) is unpacked with the message class's own precompiled
+``struct.Struct`` into an instance of that class, with the attributes ``decode`` sets, in
+its order (:func:`fast_decode`; tests/unit/glmav_observer/ingest/test_fast_decode.py pins
+both to the same objects). A datagram of one such frame is decided in one pass, one CRC
+for the prefilter and the decoding (:meth:`FrameDecoder._feed_one`). Signed frames,
+MAVLink 1, other ids and bad CRCs take ``MAVLink.decode`` as before.
+
 Every rejection is counted by reason in ``FrameCounters`` (``bad_crc``, ``truncated``,
 ``bad_header``, ``garbage_bytes``, ``unknown_message``; with a signing key also
 ``unsigned``, ``bad_signature``, ``replayed`` and ``stale``). A ``.tlog`` (8-byte
