@@ -112,7 +112,11 @@ IMU_MAX_OMEGA_RADPS = 70.0
 
 
 def _imu_vectors(f: Vec3, w: Vec3, name: str) -> tuple[Vec3, Vec3]:
-    if max(abs(x) for x in f) > IMU_MAX_F_MPS2 or max(abs(x) for x in w) > IMU_MAX_OMEGA_RADPS:
+    # (finite here: _finite3 came first) any component beyond the range, i.e. the max of |x|
+    f0, f1, f2 = abs(f[0]), abs(f[1]), abs(f[2])
+    w0, w1, w2 = abs(w[0]), abs(w[1]), abs(w[2])
+    lim_f, lim_w = IMU_MAX_F_MPS2, IMU_MAX_OMEGA_RADPS
+    if f0 > lim_f or f1 > lim_f or f2 > lim_f or w0 > lim_w or w1 > lim_w or w2 > lim_w:
         raise ConversionError("implausible", f"{name} beyond any IMU range: f={f} w={w}")
     if f == (0.0, 0.0, 0.0):
         # an accelerometer never reads exactly zero on a vehicle in gravity: absent sensor
