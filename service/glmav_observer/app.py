@@ -49,12 +49,13 @@ from glmav_observer.ingest.pipeline import (
     VehicleReset,
 )
 from glmav_observer.ingest.rates import encode_rate_request
-from glmav_observer.ingest.samples import Sample
 from glmav_observer.publish.sink import Sink
 from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, VelocityRecord
 
 logger = logging.getLogger(__name__)
 
+#: The ingest events about a vehicle rather than a sample of it.
+_VEHICLE_EVENTS = (NewVehicle, VehicleEvicted, VehicleReset, VehicleConflict)
 #: How often (host seconds) the live loop checks received rates against requested ones.
 RATE_CHECK_PERIOD_S = 1.0
 #: Reads from one ready link per loop turn before the loop checks stop, rates and outbox.
@@ -137,6 +138,11 @@ class Service:
             return 0
         out: list[Record] = []
         for ev in events:
+            if not isinstance(ev, _VEHICLE_EVENTS):  # a sample: the common case
+                self._vehicle_link[ev.sysid] = link_id
+                self._vehicle_peer[ev.sysid] = self.current_peer
+                out.extend(self.estimators[ev.sysid].on_sample(ev))
+                continue
             if isinstance(ev, NewVehicle):
                 self._new_estimator(ev.sysid, link_id)
                 continue
@@ -153,10 +159,6 @@ class Service:
                     self.estimators[ev.sysid].restart("conflicting_sources")
                     self.counters["conflicting_sources"] += 1
                 out.append(self._conflict_health(ev.sysid))
-                continue
-            self._vehicle_link[ev.sysid] = link_id
-            self._vehicle_peer[ev.sysid] = self.current_peer
-            out.extend(self._estimate(ev))
         if out:
             self._publish(out)
         return len(out)
@@ -196,9 +198,6 @@ class Service:
             v.rates.rates(),
             counters,
         )
-
-    def _estimate(self, s: Sample) -> list[Record]:
-        return self.estimators[s.sysid].on_sample(s)
 
     def _publish(self, records: list[Record]) -> None:
         self.records += len(records)

@@ -155,12 +155,15 @@ class TruthScorer:
             self.truth_samples += 1
         new = (t_s, v_ned_mps)
         p = self._pending
+        t_lerp, v_lerp = math.nan, v_ned_mps  # the truth at the last time interpolated
         while p and p[0][0] <= t_s:
             te, config, ve = p.popleft()
             if te == t_s:
                 self._score(config, ve, v_ned_mps)
             elif last is not None and last[0] <= te and t_s - last[0] <= self.max_gap_s:
-                self._score(config, ve, _lerp(last, new, te))
+                if te != t_lerp:  # the configurations of one step share their time
+                    t_lerp, v_lerp = te, _lerp(last, new, te)
+                self._score(config, ve, v_lerp)
         self._truth_prev, self._truth = last, new
 
     def _score(self, config: str, v_est: Vec3, v_truth: Vec3) -> None:
@@ -172,9 +175,11 @@ class TruthScorer:
         acc[1] += e0 * e0
         acc[2] += e1 * e1
         acc[3] += e2 * e2
-        acc[4] = max(acc[4], abs(e0))
-        acc[5] = max(acc[5], abs(e1))
-        acc[6] = max(acc[6], abs(e2))
+        # max(acc[k], |e|) as max returns it (the second only if larger), without the call
+        a0, a1, a2 = abs(e0), abs(e1), abs(e2)
+        acc[4] = a0 if a0 > acc[4] else acc[4]
+        acc[5] = a1 if a1 > acc[5] else acc[5]
+        acc[6] = a2 if a2 > acc[6] else acc[6]
 
     def n(self, config: str) -> int:
         """Estimates of ``config`` scored."""

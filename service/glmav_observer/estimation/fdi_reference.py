@@ -30,6 +30,7 @@ unobserved heading error into a sudden acceleration is uncertain, and the tests 
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -54,6 +55,7 @@ LAG_SIGMA_MIN_S = 0.02
 _V0_PRECISION = 1e-4
 
 FloatArray = np.ndarray[Any, np.dtype[np.float64]]
+AnyArray = np.ndarray[Any, Any]
 #: One row's regressors: B(τ) flattened (9), C(τ) (3) and the earth-frame acceleration
 #: L(τ) (3, the IMU's mean over the last ``LAG_WINDOW_S``).
 Integrals = tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float]]
@@ -174,6 +176,13 @@ class ReferenceFit:
     #: --claim`` takeover, :meth:`carry_over`): means, σ, and the vehicle time until which
     #: it replaces the config's zero-mean priors
     carried_prior: tuple[tuple[float, ...], tuple[float, ...], float] | None = None
+    #: rows ever added and ever dropped (from the front): ``rows`` holds those numbered
+    #: [_n_dropped, _n_added)
+    _n_added: int = 0
+    _n_dropped: int = 0
+    #: the rows' columns as arrays, kept between fits (a row is in ~20 fits): the number
+    #: of the first row they hold and (axis, z, 1/σ², B, C, L)
+    _cols: tuple[int, tuple[AnyArray, ...]] | None = None
 
     def carry_over(
         self,
@@ -198,10 +207,12 @@ class ReferenceFit:
         self.rows.append((t_s, axis, z_mps, ints[0], ints[1], sigma_mps, ints[2]))
         self.rows_per_axis[axis] += 1
         self._since_fit += 1
+        self._n_added += 1
 
     def drop_before(self, t_s: float) -> None:
         while self.rows and self.rows[0][0] < t_s:
             self.rows_per_axis[self.rows.popleft()[1]] -= 1
+            self._n_dropped += 1
         self.fitted = False
         self.fitted_axes = frozenset()
 
@@ -210,6 +221,7 @@ class ReferenceFit:
         rows = self.rows
         while rows and rows[0][0] < t_min:
             self.rows_per_axis[rows.popleft()[1]] -= 1
+            self._n_dropped += 1
         if self._since_fit >= 15 or (not self.fitted and self._since_fit > 0):
             new_rows = self._since_fit
             self._since_fit = 0
@@ -259,6 +271,42 @@ class ReferenceFit:
         self.lag_memory_s = (kept * self.lag_memory_s + add * d_like) / total
         self.lag_memory_info = total
 
+    def _columns(self) -> tuple[AnyArray, ...]:
+        """(axis, z, 1/σ², B (n, 9), C (n, 3), L (n, 3)) of the rows as arrays: those of
+        the last fit still held, and the rows added since, converted once."""
+        rows = self.rows
+        first, end = self._n_dropped, self._n_added
+        kept = self._cols
+        if kept is not None and kept[0] <= first <= kept[0] + len(kept[1][0]):
+            skip = first - kept[0]
+            old = [col[skip:] for col in kept[1]]
+            start = len(old[0])
+        else:
+            old, start = [], 0
+        new = list(itertools.islice(rows, start, None))
+        m = len(new)
+        fresh: tuple[AnyArray, ...] = (
+            np.fromiter((r[1] for r in new), dtype=np.intp, count=m),
+            np.fromiter((r[2] for r in new), dtype=np.float64, count=m),
+            np.fromiter((1.0 / r[5] ** 2 for r in new), dtype=np.float64, count=m),
+            np.array([r[3] for r in new], dtype=np.float64).reshape(m, 9),
+            np.array([r[4] for r in new], dtype=np.float64).reshape(m, 3),
+            np.array([r[6] for r in new], dtype=np.float64).reshape(m, 3),
+        )
+        cols = (
+            fresh
+            if not old
+            else tuple(np.concatenate((o, f)) for o, f in zip(old, fresh, strict=True))
+        )
+        if not len(cols[0]) == end - first == len(rows):
+            # the counts disagree with the rows (only if ``rows`` was changed from outside
+            # this class): start the columns afresh from the rows as they are
+            self._cols = None
+            self._n_dropped, self._n_added = 0, len(rows)
+            return self._columns()
+        self._cols = (first, cols)
+        return cols
+
     def _fit(self, new_rows: int = 0) -> None:
         rows = self.rows
         if len(rows) < 12 or self.span_s() < 1.0:
@@ -267,13 +315,11 @@ class ReferenceFit:
         n = len(rows)
         b0 = rows[0][3]
         c0 = rows[0][4]
-        axes = np.fromiter((r[1] for r in rows), dtype=np.intp, count=n)
-        z = np.fromiter((r[2] for r in rows), dtype=np.float64, count=n)
-        w = np.fromiter((1.0 / r[5] ** 2 for r in rows), dtype=np.float64, count=n)
-        w /= cfg.correlation_samples
-        Bj = (np.array([r[3] for r in rows]) - np.asarray(b0)).reshape(n, 3, 3)[np.arange(n), axes]
-        Cj = (np.array([r[4] for r in rows]) - np.asarray(c0))[np.arange(n), axes]
-        Lj = np.array([r[6] for r in rows])[np.arange(n), axes]
+        axes, z, w_rows, b_rows, c_rows, l_rows = self._columns()
+        w = w_rows / cfg.correlation_samples
+        Bj = (b_rows - np.asarray(b0)).reshape(n, 3, 3)[np.arange(n), axes]
+        Cj = (c_rows - np.asarray(c0))[np.arange(n), axes]
+        Lj = l_rows[np.arange(n), axes]
         X = np.zeros((n, N_THETA))
         X[np.arange(n), axes] = 1.0
         X[:, 3:6] = -Bj

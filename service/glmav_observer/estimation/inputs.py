@@ -64,13 +64,20 @@ class HeldInputs:
         y = self.y_ned_mps
         if not propagate:
             return y
-        b = bias_body_mps2
-        dB = [self._b_int[k] - self._b_int_at_y[k] for k in range(9)]
+        b0, b1, b2 = bias_body_mps2
+        bi, by = self._b_int, self._b_int_at_y
+        ai, ay = self.a_int, self._a_int_at_y
+        # y_i + ΔA_i − Σ_k ΔB_ik b_k, row by row (the same sums in the same order)
         return [
-            y[i]
-            + (self.a_int[i] - self._a_int_at_y[i])
-            - (dB[3 * i] * b[0] + dB[3 * i + 1] * b[1] + dB[3 * i + 2] * b[2])
-            for i in range(3)
+            y[0]
+            + (ai[0] - ay[0])
+            - ((bi[0] - by[0]) * b0 + (bi[1] - by[1]) * b1 + (bi[2] - by[2]) * b2),
+            y[1]
+            + (ai[1] - ay[1])
+            - ((bi[3] - by[3]) * b0 + (bi[4] - by[4]) * b1 + (bi[5] - by[5]) * b2),
+            y[2]
+            + (ai[2] - ay[2])
+            - ((bi[6] - by[6]) * b0 + (bi[7] - by[7]) * b1 + (bi[8] - by[8]) * b2),
         ]
 
     def integrate(self, t: float, dt: float, e_flat: list[float]) -> None:
@@ -80,8 +87,9 @@ class HeldInputs:
         a = rotate_flat(e_flat, self.f_body_mps2)  # E Γ = E f + g e_d (V̇ = E Γ)
         a[2] += self.g_mps2
         ai = self.a_int
-        for i in range(3):
-            ai[i] += a[i] * dt
+        ai[0] += a[0] * dt
+        ai[1] += a[1] * dt
+        ai[2] += a[2] * dt
         hist = self._a_hist
         hist.append((t, ai[0], ai[1], ai[2]))
         while len(hist) > 2 and hist[1][0] <= t - LAG_WINDOW_S:
@@ -90,8 +98,7 @@ class HeldInputs:
         self.c_int[0] -= a[1] * dt
         self.c_int[1] += a[0] * dt
         bi = self._b_int
-        for k in range(9):
-            bi[k] += e_flat[k] * dt  # B = ∫ E dt (fdi_reference.ReferenceFit)
+        bi[:] = [b + e * dt for b, e in zip(bi, e_flat, strict=True)]  # B = ∫ E dt (ReferenceFit)
         f = self.f_body_mps2
         fi = self._f_int
         fi[0] += f[0] * dt

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from glmav_observer.configurations import AIDED, CONFIGS, LOST_AXIS_OF_CONFIG
+from glmav_observer.configurations import AIDED, CONFIGS, LOST_AXIS_OF_CONFIG, AxisName
 from glmav_observer.frames import e_exact, rotate_t_flat
 from glmav_observer.ingest.samples import TruthSample, VelocitySample
 from glmav_observer.records import (
@@ -37,6 +37,19 @@ def merge_counters(*parts: Mapping[str, int]) -> dict[str, int]:
         for k, n in part.items():
             out[k] = out.get(k, 0) + n
     return dict(sorted(out.items()))
+
+
+def _health_faulty(lost: AxisName | None) -> str:
+    """A configuration's ``health`` while an axis is isolated."""
+    return "degraded" if lost is None else "dead_reckoning"
+
+
+#: Per configuration (CONFIGS order): its name, its lost axis and its ``health`` while no
+#: axis is isolated (``ok`` for ``full``; its lost axis dead-reckoned for the others).
+_CONFIG_HEALTH: tuple[tuple[str, AxisName | None, str], ...] = tuple(
+    (c, LOST_AXIS_OF_CONFIG[c], "ok" if c == "full" else _health_faulty(LOST_AXIS_OF_CONFIG[c]))
+    for c in CONFIGS
+)
 
 
 class RecordBuilder:
@@ -72,15 +85,15 @@ class RecordBuilder:
     ) -> None:
         """The records of one step: every configuration (CONFIGS order: ``body``, ``ned``,
         ``sigma_lost_mps`` per configuration), then ``active``."""
-        for i, c in enumerate(CONFIGS):
-            lost = LOST_AXIS_OF_CONFIG[c]
-            health = "ok" if c == "full" and n_faulty == 0 else "degraded"
-            if lost is not None:
-                health = "dead_reckoning"
+        seq = self._seq
+        sysid = self.sysid
+        for i, (c, lost, health_ok) in enumerate(_CONFIG_HEALTH):
+            seq[c] += 1
+            b, v = body[i], ned[i]
             out.append(
                 VelocityRecord(
-                    self.sysid, c, t, (body[i][0], body[i][1], body[i][2]),
-                    (ned[i][0], ned[i][1], ned[i][2]), lost, health, self._seqn(c), None,
+                    sysid, c, t, (b[0], b[1], b[2]), (v[0], v[1], v[2]), lost,
+                    health_ok if n_faulty == 0 else _health_faulty(lost), seq[c], None,
                     sigma_lost_mps[i],
                 )
             )  # fmt: skip

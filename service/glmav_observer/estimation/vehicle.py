@@ -80,6 +80,8 @@ from glmav_observer.records import NED_AXES, FaultEvent, Record, ReferenceFitSum
 ACCEL_EVENT_HOLD_S = 5.0
 
 Vec3 = tuple[float, float, float]
+#: Per configuration (CONFIGS order): whether it has a lost (dead-reckoned) axis.
+_HAS_LOST_AXIS: tuple[bool, ...] = tuple(LOST_AXIS_OF_CONFIG[c] is not None for c in CONFIGS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -499,11 +501,10 @@ class VehicleEstimator:
         c_int = self.inputs.c_int
         body, ned_l = self.bank.estimates_lists()
         fdi_cfg = self.cfg.fdi
+        t_dr = sel.t_dr_start_s
         sigma = [
-            None
-            if LOST_AXIS_OF_CONFIG[c] is None
-            else sigma_dead_reckoning_mps(fdi_cfg, t - sel.t_dr_start_s[i])
-            for i, c in enumerate(CONFIGS)
+            sigma_dead_reckoning_mps(fdi_cfg, t - t_dr[i]) if has_lost else None
+            for i, has_lost in enumerate(_HAS_LOST_AXIS)
         ]
         a_sigma = (
             None

@@ -107,7 +107,7 @@ def message_time_us(msg: Any) -> tuple[int, TimeKind]:
 
 
 def _finite3(values: tuple[float, float, float], what: str) -> Vec3:
-    x, y, z = (float(v) for v in values)
+    x, y, z = float(values[0]), float(values[1]), float(values[2])
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         raise ConversionError("nan_field", f"{what} not finite: {values}")
     return (x, y, z)
@@ -120,7 +120,11 @@ IMU_MAX_OMEGA_RADPS = 70.0
 
 
 def _imu_vectors(f: Vec3, w: Vec3, name: str) -> tuple[Vec3, Vec3]:
-    if max(abs(x) for x in f) > IMU_MAX_F_MPS2 or max(abs(x) for x in w) > IMU_MAX_OMEGA_RADPS:
+    # (finite here: _finite3 came first) any component beyond the range, i.e. the max of |x|
+    f0, f1, f2 = abs(f[0]), abs(f[1]), abs(f[2])
+    w0, w1, w2 = abs(w[0]), abs(w[1]), abs(w[2])
+    lim_f, lim_w = IMU_MAX_F_MPS2, IMU_MAX_OMEGA_RADPS
+    if f0 > lim_f or f1 > lim_f or f2 > lim_f or w0 > lim_w or w1 > lim_w or w2 > lim_w:
         raise ConversionError("implausible", f"{name} beyond any IMU range: f={f} w={w}")
     if f == (0.0, 0.0, 0.0):
         # an accelerometer never reads exactly zero on a vehicle in gravity: absent sensor

@@ -14,6 +14,16 @@ checks the CRC with the message's CRC-extra):
   end of a datagram are a truncated frame and are dropped; in stream mode (TCP,
   serial) they wait for more bytes.
 
+Fast decode. The messages the service consumes (:data:`FAST_DECODE_MESSAGES`: the sample
+messages of ``ingest/convert.py``, ``HEARTBEAT``, ``SYSTEM_TIME``), when they come as
+unsigned MAVLink 2, are decoded without ``MAVLink.decode``'s generic path: the payload
+(zero-truncation padded back) is unpacked with the message class's own precompiled
+``struct.Struct`` into an instance of that class, with the attributes ``decode`` sets, in
+its order (:func:`fast_decode`; tests/unit/glmav_observer/ingest/test_fast_decode.py pins
+both to the same objects). A datagram of one such frame is decided in one pass, one CRC
+for the prefilter and the decoding (:meth:`FrameDecoder._feed_one`). Signed frames,
+MAVLink 1, other ids and bad CRCs take ``MAVLink.decode`` as before.
+
 Every rejection is counted by reason in ``FrameCounters`` (``bad_crc``, ``truncated``,
 ``bad_header``, ``garbage_bytes``, ``unknown_message``; with a signing key also
 ``unsigned``, ``bad_signature``, ``replayed`` and ``stale``). A ``.tlog`` (8-byte
@@ -36,6 +46,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink_dialect
+
+from glmav_observer.ingest.convert import SAMPLE_MESSAGES
 
 logger = logging.getLogger(__name__)
 
@@ -200,6 +212,124 @@ def _frame_length(buf: bytes | bytearray, p: int, n: int) -> int | None:
     return _HEADER_V1 + buf[p + 1] + 2
 
 
+def frame_crc(frame: bytes | bytearray, start: int, end: int, crc_extra: int) -> int:
+    """MAVLink's checksum (CRC-16/MCRF4XX) of the frame at ``start`` (its bytes after the
+    magic up to ``end``, the end of its payload) followed by the message's CRC extra:
+    the dialect's C implementation (fastcrc) when pymavlink found it, else its
+    pure-Python one."""
+    fast = mavlink_dialect.mcrf4xx
+    if fast is not None:
+        return int(fast(_EXTRA_BYTE[crc_extra], fast(frame[start + 1 : end], 0xFFFF)))
+    body = bytearray(frame[start + 1 : end])
+    body.append(crc_extra)
+    return int(mavlink_dialect.x25crc(body).crc)
+
+
+_EXTRA_BYTE = [bytes([i]) for i in range(256)]
+
+
+@dataclass(frozen=True, slots=True)
+class FastSpec:
+    """How to decode one message id without pymavlink's generic ``decode``: everything
+    comes from pymavlink's generated class (its wire-order field names, its precompiled
+    ``struct.Struct``, its CRC extra) and a prototype instance (the attributes its
+    constructor sets, in their order)."""
+
+    msg_class: Any  # a pymavlink MAVLink_*_message class (pymavlink has no stubs)
+    crc_extra: int
+    unpack_from: Callable[[bytes | bytearray, int], tuple[Any, ...]]
+    payload_len: int
+    wire_names: tuple[str, ...]
+    template: dict[str, Any]
+
+
+def fast_spec(msg_id: int) -> FastSpec | None:
+    """The fast decoding of ``msg_id``, or None where pymavlink's ``decode`` must stay
+    (unknown id, array or string fields: those it post-processes)."""
+    cls = mavlink_dialect.mavlink_map.get(msg_id)
+    if cls is None or any(n != 1 for n in cls.lengths):
+        return None
+    if any(t.startswith("char") for t in cls.fieldtypes):
+        return None
+    proto = cls(*(0 for _ in cls.fieldnames))
+    return FastSpec(
+        msg_class=cls,
+        crc_extra=cls.crc_extra,
+        unpack_from=cls.unpacker.unpack_from,
+        payload_len=cls.unpacker.size,
+        wire_names=tuple(cls.ordered_fieldnames),
+        template=dict(proto.__dict__),
+    )
+
+
+#: The messages the service consumes (ingest/pipeline.py): decoded by :meth:`FrameDecoder.
+#: _fast_decode` when they come as unsigned MAVLink 2; a message added to the ingest (to
+#: ``SAMPLE_MESSAGES``) joins this table, and any other id falls back to pymavlink.
+FAST_DECODE_MESSAGES: frozenset[str] = SAMPLE_MESSAGES | {"HEARTBEAT", "SYSTEM_TIME"}
+
+
+def _fast_table() -> dict[int, FastSpec]:
+    if mavlink_dialect.MAVLINK_IGNORE_CRC:  # pymavlink told to accept bad CRCs: its path
+        return {}
+    table: dict[int, FastSpec] = {}
+    for name in sorted(FAST_DECODE_MESSAGES):
+        msg_id = getattr(mavlink_dialect, f"MAVLINK_MSG_ID_{name}", None)
+        spec = None if msg_id is None else fast_spec(msg_id)
+        if msg_id is not None and spec is not None:
+            table[msg_id] = spec
+    return table
+
+
+#: message id -> its fast decoding (see :data:`FAST_DECODE_MESSAGES`)
+FAST_DECODE: dict[int, FastSpec] = _fast_table()
+
+_MAVLinkHeader = mavlink_dialect.MAVLink_header
+
+
+def fast_decode(frame: bytearray) -> MavMessage | None:
+    """The message of an unsigned MAVLink 2 ``frame`` (whole, length already checked by
+    the framing) whose id is in :data:`FAST_DECODE`, built as pymavlink's ``decode``
+    builds it (the same class, attributes, values and their order), or None for any
+    other frame and for a bad CRC: pymavlink's ``decode`` then decides and names the
+    rejection."""
+    if frame[0] != MAGIC_V2 or frame[2]:
+        return None
+    msg_id = frame[7] | frame[8] << 8 | frame[9] << 16
+    spec = FAST_DECODE.get(msg_id)
+    mlen = frame[1]
+    end = _HEADER_V2 + mlen
+    if spec is None or len(frame) != end + 2:
+        return None
+    crc = frame[end] | frame[end + 1] << 8
+    if frame_crc(frame, 0, end, spec.crc_extra) != crc:
+        return None
+    return _fast_message(spec, frame, msg_id, crc)
+
+
+def _fast_message(spec: FastSpec, frame: bytearray, msg_id: int, crc: int) -> MavMessage:
+    """:func:`fast_decode`'s message, the frame checked (unsigned MAVLink 2, its length,
+    its CRC). MAVLink 2 drops a payload's trailing zero bytes: padded back here."""
+    mlen = frame[1]
+    size = spec.payload_len
+    if mlen >= size:
+        values = spec.unpack_from(frame, _HEADER_V2)
+    else:
+        values = spec.unpack_from(
+            bytes(frame[_HEADER_V2 : _HEADER_V2 + mlen]) + bytes(size - mlen), 0
+        )
+    msg = spec.msg_class.__new__(spec.msg_class)
+    d = dict(spec.template)  # the constructor's attributes, in its order
+    d.update(zip(spec.wire_names, values, strict=True))
+    # what pymavlink's decode sets after construction (``_payload`` from byte 6, as it does)
+    d["_signed"] = False
+    d["_msgbuf"] = frame
+    d["_payload"] = frame[6:-2]
+    d["_crc"] = crc
+    d["_header"] = _MAVLinkHeader(msg_id, 0, frame[3], mlen, frame[4], frame[5], frame[6])
+    msg.__dict__ = d
+    return msg
+
+
 #: byte size of a MAVLink field type (the prefilter reads a payload's first field)
 _FIELD_SIZE = {"uint64_t": 8, "int64_t": 8, "uint32_t": 4, "int32_t": 4, "uint16_t": 2}
 
@@ -249,6 +379,10 @@ class FrameDecoder:
     def _try_decode(self, frame: bytearray) -> tuple[MavMessage | None, str | None]:
         if frame[0] == MAGIC_V2 and frame[2] & ~_IFLAG_SIGNED:
             return None, "bad_header"  # unknown incompatibility flags: cannot be parsed
+        if self._signing_key is None:
+            fast = fast_decode(frame)
+            if fast is not None:
+                return fast, None
         try:
             msg = self._mav.decode(frame)
         except mavlink_dialect.MAVError as err:
@@ -307,14 +441,42 @@ class FrameDecoder:
             return False
         crc_extra, t_size = spec
         end = p + length - 2
-        body = buf[p + 1 : end]
-        body.append(crc_extra)
-        if mavlink_dialect.x25crc(body).crc != buf[end] | buf[end + 1] << 8:
+        if frame_crc(buf, p, end, crc_extra) != buf[end] | buf[end + 1] << 8:
             return False  # the full path counts the rejection
         # MAVLink 2 drops a payload's trailing zero bytes: a short field reads as zero
         first = int.from_bytes(buf[p + hdr : min(p + hdr + t_size, end)], "little")
         assert self.prefilter is not None
         return self.prefilter(sysid, compid, msgid, first, t_host_s)
+
+    def _feed_one(self, data: bytes | bytearray, t_host_s: float) -> list[MavMessage] | None:
+        """A datagram that is exactly one valid unsigned MAVLink 2 frame of a message in
+        :data:`FAST_DECODE` (what vehicles send): what :meth:`feed`'s loop returns and
+        counts for it, with its CRC computed once for the prefilter and the decoding.
+        None for any other datagram: the loop decides."""
+        n = len(data)
+        if n < _HEADER_V2 + 2 or data[0] != MAGIC_V2 or data[2] or n != _HEADER_V2 + data[1] + 2:
+            return None
+        msg_id = data[7] | data[8] << 8 | data[9] << 16
+        spec = FAST_DECODE.get(msg_id)
+        if spec is None:
+            return None
+        end = n - 2
+        crc = data[end] | data[end + 1] << 8
+        if frame_crc(data, 0, end, spec.crc_extra) != crc:
+            return None
+        prefilter = self.prefilter
+        if prefilter is not None:
+            pre = self.prefilter_ids.get(msg_id)
+            if pre is not None:
+                # as _prefiltered: the first field, a short (zero-truncated) one reads as zero
+                first = int.from_bytes(data[_HEADER_V2 : min(_HEADER_V2 + pre[1], end)], "little")
+                if prefilter(data[5], data[6], msg_id, first, t_host_s):
+                    self.counters.add("frames_ok")
+                    self.prefiltered += 1
+                    return []
+        msg = _fast_message(spec, bytearray(data), msg_id, crc)
+        self.counters.add("frames_ok")
+        return [msg]
 
     def feed(self, data: bytes | bytearray, t_host_s: float = 0.0) -> list[MavMessage]:
         """Add bytes; return the messages completed by them (in order).
@@ -322,6 +484,10 @@ class FrameDecoder:
         In datagram mode ``data`` is one whole datagram and nothing carries over.
         ``t_host_s`` (arrival) is passed to :attr:`prefilter`.
         """
+        if self._datagram and self._signing_key is None:
+            one = self._feed_one(data, t_host_s)
+            if one is not None:
+                return one
         buf = self._buf
         buf.extend(data)
         out: list[MavMessage] = []

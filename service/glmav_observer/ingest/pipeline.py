@@ -46,6 +46,8 @@ _IMU_SOURCE: dict[str, ImuSource] = {
     "SCALED_IMU": ImuSource.SCALED_IMU,
     "HIGHRES_IMU": ImuSource.HIGHRES_IMU,
 }
+#: The counter of each sample message received (``rx_<NAME>``), built once.
+_RX_COUNTER: dict[str, str] = {name: f"rx_{name}" for name in SAMPLE_MESSAGES}
 #: MAVLink message id of each IMU message: what :meth:`Ingest.skip_superseded` is offered
 IMU_MESSAGE_IDS: dict[int, str] = {27: "RAW_IMU", 26: "SCALED_IMU", 105: "HIGHRES_IMU"}
 _IMU_TIME_KIND: dict[str, TimeKind] = {
@@ -204,7 +206,7 @@ class Ingest:
             return False
         # what on_message does for this message, in its order
         v.t_host_last_s = t_host_s
-        v.counters[f"rx_{name}"] += 1
+        v.counters[_RX_COUNTER[name]] += 1
         v.clock.to_boot_s(t_us, kind, t_host_s)
         v.counters["imu_superseded"] += 1
         return True
@@ -235,7 +237,7 @@ class Ingest:
             v.counters["other_component"] += 1
             return events
         v.t_host_last_s = t_host_s
-        v.counters[f"rx_{name}"] += 1
+        v.counters[_RX_COUNTER[name]] += 1
         t_us, kind = message_time_us(msg)
         t_s = v.clock.to_boot_s(t_us, kind, t_host_s)
         if t_s is None:

@@ -265,3 +265,27 @@ def test_plain_float_estimates_equal_the_arrays() -> None:
         np.testing.assert_array_equal(np.array(body), bank.x_hat_body_mps)
         np.testing.assert_allclose(np.array(ned), bank.x_hat_ned_mps(), rtol=0, atol=1.3e-14)
         assert bank.e_last_flat() == bank.e_last.ravel().tolist()
+
+
+def test_phi_terms_cache_equals_recomputing_every_step() -> None:
+    """The φ-terms kept per step length (``TERMS_CACHE_SIZE``): a bank that reuses them
+    equals, bit for bit, one that recomputes them at every step, over jittered step
+    lengths (more distinct lengths than the cache holds) and a γ changed midway."""
+    rng = np.random.default_rng(4)
+    cached, fresh = ObserverBank(), ObserverBank()
+    lengths = [0.004 + k * 1e-17 for k in range(40)]  # 40 round-offs of one length
+    short = [0.004, 0.002, 0.001, 0.003]
+    for i in range(300):
+        if i == 204:  # the short lengths are kept by now: their terms must not be reused
+            for b in (cached, fresh):
+                b.set_gamma("full", 7.5)
+        h = lengths[int(rng.integers(len(lengths)))] if i < 200 else short[i % 4]
+        eul = rng.uniform(-0.5, 0.5, 3).tolist()
+        w = rng.uniform(-1.0, 1.0, 3).tolist()
+        f = (rng.uniform(-2.0, 2.0, 3) + np.array([0.0, 0.0, -9.8])).tolist()
+        y = rng.uniform(-5.0, 5.0, 3).tolist()
+        fresh._terms_by_h.clear()
+        for b in (cached, fresh):
+            b.step(h, eul, w, f, y)
+        assert cached.estimates_lists() == fresh.estimates_lists()
+    assert 0 < len(cached._terms_by_h) <= 16

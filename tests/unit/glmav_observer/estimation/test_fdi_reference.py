@@ -85,3 +85,47 @@ def test_dead_reckoning_age_is_the_inverse_of_its_sigma() -> None:
         sigma = sigma_dead_reckoning_mps(cfg, age_s)
         assert dead_reckoning_age_s(cfg, sigma) == pytest.approx(age_s, abs=1e-9)
     assert dead_reckoning_age_s(cfg, 0.01) == 0.0
+
+
+def test_fit_columns_kept_between_fits_equal_the_rows_converted_afresh() -> None:
+    """ReferenceFit keeps its rows' arrays between fits (each row converted once): after
+    rows added, pruned and dropped in any order they equal the rows converted at once,
+    bit for bit, and so does the fit."""
+    rng = np.random.default_rng(7)
+    fit, ref = ReferenceFit(FdiConfig()), ReferenceFit(FdiConfig())
+    t = 0.0
+    for step in range(600):
+        t += 0.033
+        axis = int(rng.integers(3))
+        ints = (
+            tuple(rng.normal(size=9).tolist()),
+            tuple(rng.normal(size=3).tolist()),
+            tuple(rng.normal(size=3).tolist()),
+        )
+        z, sigma = float(rng.normal()), float(rng.uniform(0.05, 0.3))
+        for f in (fit, ref):
+            f.add(t, axis, z, ints, sigma)
+        if step == 300:
+            for f in (fit, ref):
+                f.drop_before(t - 2.0)
+        ref._cols = None  # the reference converts every row at every fit
+        for f in (fit, ref):
+            f.prune_and_fit(t)
+        assert fit._n_added - fit._n_dropped == len(fit.rows)
+        if step % 7 == 0:  # what the next fit would use, against the rows as they are
+            rows = list(fit.rows)
+            afresh = (
+                np.array([r[1] for r in rows]),
+                np.array([r[2] for r in rows]),
+                np.array([1.0 / r[5] ** 2 for r in rows]),
+                np.array([r[3] for r in rows]).reshape(-1, 9),
+                np.array([r[4] for r in rows]).reshape(-1, 3),
+                np.array([r[6] for r in rows]).reshape(-1, 3),
+            )
+            kept = fit._columns()
+            assert all(np.array_equal(a, b) for a, b in zip(kept, afresh, strict=True))
+        if fit.ref is not None:
+            assert ref.ref is not None
+            assert fit.ref.theta == ref.ref.theta
+            assert np.array_equal(fit.ref.cov, ref.ref.cov)
+    assert fit.fitted and len(fit.rows) > 100
