@@ -66,8 +66,18 @@ def test_mavsdk_flies_the_simulator(free_udp_port: Callable[[], int]) -> None:
             tel, act, par, off = Telemetry(system), Action(system), Param(system), Offboard(system)
             plugins += [tel, act, par, off]
             _wait(lambda: tel.health().is_armable, 10.0, "health: armable")
-            h = tel.health()
-            assert h.is_home_position_ok and h.is_global_position_ok and h.is_local_position_ok
+            # MAVSDK sets armable from SYS_STATUS and home from HOME_POSITION, two messages
+            # handled one after the other: wait for the position flags too (once, in a full run, the
+            # home flag was read a moment before its message had been handled)
+            _wait(
+                lambda: (
+                    (h := tel.health()).is_home_position_ok
+                    and h.is_global_position_ok
+                    and h.is_local_position_ok
+                ),
+                10.0,
+                "health: home, global and local position",
+            )
             assert not tel.armed() and not tel.in_air()
             assert tel.flight_mode() == FlightMode.HOLD
             # on the ground at home: GLOBAL_POSITION_INT (1e-7 deg, 1 mm) and HOME_POSITION
