@@ -23,33 +23,15 @@ from glmav_observer.evaluation import (
     read_log_bytes,
 )
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
-from glmav_observer.records import Record, TruthRecord, VelocityRecord
+from glmav_testkit.sinks import AidedSink
 
 LOG = Path(__file__).parents[2] / "data" / "ardupilot_sitl" / "f_coax_clean.tlog.xz"
 T_ON_S = 75.1
 LOSS_S = 60.0
 
 
-class _Sink:
-    def __init__(self) -> None:
-        self.aided: list[VelocityRecord] = []
-        self.active: dict[float, VelocityRecord] = {}
-        self.truth: list[TruthRecord] = []
-
-    def write(self, r: Record) -> None:
-        if isinstance(r, VelocityRecord) and r.config == "aided":
-            self.aided.append(r)
-        elif isinstance(r, VelocityRecord) and r.config == "active":
-            self.active[r.t_boot_s] = r
-        elif isinstance(r, TruthRecord):
-            self.truth.append(r)
-
-    def close(self) -> None:
-        return None
-
-
 def test_a_frozen_axis_is_aided_by_the_learnt_drag_and_never_worse_than_dead_reckoning() -> None:
-    sink = _Sink()
+    sink = AidedSink()
     service = Service(ServiceConfig(), [sink])
     injector = FaultInjector([VelocityFault(0, "freeze", T_ON_S, T_ON_S + LOSS_S)])
     for rec in iter_tlog(read_log_bytes(LOG), FrameCounters()):

@@ -25,7 +25,7 @@ from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.evaluation import FaultInjector, VelocityFault, interpolate_truth
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
-from glmav_observer.records import Record, TruthRecord, VelocityRecord
+from glmav_testkit.sinks import AidedSink
 
 T_ON_S = 25.0
 LOSS_S = 30.0
@@ -40,24 +40,6 @@ RATES_HZ = {
 }
 
 
-class _Sink:
-    def __init__(self) -> None:
-        self.aided: list[VelocityRecord] = []
-        self.active: dict[float, VelocityRecord] = {}
-        self.truth: list[TruthRecord] = []
-
-    def write(self, r: Record) -> None:
-        if isinstance(r, VelocityRecord) and r.config == "aided":
-            self.aided.append(r)
-        elif isinstance(r, VelocityRecord) and r.config == "active":
-            self.active[r.t_boot_s] = r
-        elif isinstance(r, TruthRecord):
-            self.truth.append(r)
-
-    def close(self) -> None:
-        return None
-
-
 @pytest.fixture(scope="module")
 def tlog(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     from glmav_sitl.runner import run
@@ -70,8 +52,8 @@ def tlog(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     return path.read_bytes()
 
 
-def _fly(data: bytes, control: ControlMapping | None) -> tuple[_Sink, Service]:
-    sink = _Sink()
+def _fly(data: bytes, control: ControlMapping | None) -> tuple[AidedSink, Service]:
+    sink = AidedSink()
     cfg = ServiceConfig(estimation=EstimatorConfig(aero_control=control))
     service = Service(cfg, [sink])
     injector = FaultInjector([VelocityFault(0, "freeze", T_ON_S, T_ON_S + LOSS_S)])
@@ -82,7 +64,7 @@ def _fly(data: bytes, control: ControlMapping | None) -> tuple[_Sink, Service]:
     return sink, service
 
 
-def _errors(sink: _Sink) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _errors(sink: AidedSink) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(t, aided north error, dead-reckoned north error, aided σ) over the loss."""
     t = np.array([r.t_boot_s for r in sink.aided])
     tt = np.array([r.t_boot_s for r in sink.truth])
