@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -20,6 +21,8 @@ from glmav_observer.app import Service
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.commands.demo import scenario_toml
 from glmav_observer.config import ServiceConfig, load_config
+from glmav_observer.fleet.routing import frame_length
+from glmav_observer.ingest.framing import FrameCounters, TlogRecord, iter_tlog
 from glmav_observer.ingest.links import Link
 from glmav_observer.records import Record
 from glmav_testkit import REPO_ROOT
@@ -124,3 +127,41 @@ def run_live(
                 p.kill()
         service.close()
     return LiveRun(service.summary(), sink.records, tlog, sent)
+
+
+def follow_tlog(
+    path: Path, proc: subprocess.Popen[bytes], poll_s: float = 0.02
+) -> Iterator[TlogRecord]:
+    """The records of the ``.tlog`` that ``proc`` is still writing, each once it is whole.
+
+    A consumer (the service) then runs on one core while the simulator runs on the other,
+    as they would live, and still sees every record (a file: no datagram lost). Ends when
+    ``proc`` has exited and everything it wrote is read; a partial record left at the end
+    is an error (the simulator writes whole records).
+    """
+    counters = FrameCounters()
+    while not path.exists():
+        if proc.poll() is not None:
+            raise RuntimeError(f"{path}: the simulator exited ({proc.returncode}) before writing")
+        time.sleep(poll_s)
+    buf = bytearray()
+    with path.open("rb") as f:
+        while True:
+            exited = proc.poll() is not None  # checked before the read: nothing comes after it
+            chunk = f.read()
+            buf += chunk
+            whole = 0
+            while whole + 8 < len(buf):
+                length = frame_length(buf, whole + 8)
+                if length is None or whole + 8 + length > len(buf):
+                    break
+                whole += 8 + length
+            if whole:
+                yield from iter_tlog(bytes(buf[:whole]), counters)
+                del buf[:whole]
+            elif exited and not chunk:
+                break
+            elif not chunk:
+                time.sleep(poll_s)
+    if buf:
+        raise RuntimeError(f"{path}: {len(buf)} bytes at the end are not a whole record")
