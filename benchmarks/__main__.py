@@ -29,6 +29,7 @@ MODULES: tuple[str, ...] = (
     "bench_sitl",
     "bench_daemon",
     "bench_fleet",
+    "bench_worker",
     "bench_zenoh",
     "bench_rerun",
     "accuracy",
