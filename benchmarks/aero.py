@@ -354,11 +354,15 @@ def _rms_between(t: FloatArray, e: FloatArray, a: float, b: float) -> float:
     return float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else math.nan
 
 
-def run_flight(fl: Flight, *, d_forced: bool = False) -> list[dict[str, Any]]:
+def run_flight(
+    fl: Flight, *, d_forced: bool = False, model_config: DragModelConfig | None = None
+) -> list[dict[str, Any]]:
     """All cases of a flight: the model learns once up to each loss time (snapshots).
     ``d_forced``: also the d cases with d aided (off by default, ``aided_axes``), marked
-    ``"variant": "d aided"``."""
-    model = DragModel(DragModelConfig(control=fl.control is not None))
+    ``"variant": "d aided"``. ``model_config``: the model's settings (default: the
+    service's), its ``control`` set by the flight."""
+    base = model_config or DragModelConfig()
+    model = DragModel(dataclasses.replace(base, control=fl.control is not None))
     cases: list[dict[str, Any]] = []
     k = 0
     for t_loss in loss_times_s(fl):

@@ -6,8 +6,10 @@ config and scenario loaders, never retyped. Shared by the floor's tests and
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from glmav_observer.estimation.aero.floor import FloorModel
+from glmav_sitl.params import VehicleParams, load_vehicle_params
 from glmav_sitl.scenario import (
     Scenario,
     SitlConfig,
@@ -51,3 +53,18 @@ def sitl_floor_model(
         velocity_rate_hz=rate,
         velocity_sigma_mps=sigma_v,
     )
+
+
+def glmav_linear_drag_per_s(params: VehicleParams | None = None) -> tuple[float, float]:
+    """The body's linear drag (k_x, k_y) in hover, 1/s, from the vehicle file: equations.md
+    eqs. (7)-(8), f_i = ½ρS_iC_i [V_tot]_i ‖V_tot‖ / m, linearised in the horizontal
+    airspeed u about the hover, where ‖V_tot‖ ≈ v_dw (the rotor's downwash at the body,
+    momentum theory with the download: v_dw = downwash_hover √(T/(mg)), T = mg/(1 − c),
+    c = ½ρS_top C_z downwash_hover²/(mg), glmav_sitl/dynamics/model.py):
+    k_i = ½ρ S_side C_i v_dw / m. The informed prior of ``DragModelConfig.prior_k``."""
+    p = params or load_vehicle_params()
+    c = 0.5 * p.rho * p.top_area_m2 * p.cz * p.downwash_hover**2 / (p.m * p.g)
+    v_dw = p.downwash_hover * math.sqrt(1.0 / (1.0 - c))
+    kx = 0.5 * p.rho * p.side_area_m2 * p.cx * v_dw / p.m
+    ky = 0.5 * p.rho * p.side_area_m2 * p.cy * v_dw / p.m
+    return kx, ky
