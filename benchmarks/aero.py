@@ -44,6 +44,13 @@ from numpy.typing import NDArray
 from benchmarks.common import format_goals, format_table, goal, main_for, time_per_call_s
 from glmav_observer.estimation.aero import AidedAxis, DragModel, DragModelConfig
 from glmav_observer.estimation.aero.control import ControlMapping
+from glmav_observer.estimation.aero.floor import (
+    MEDIAN_ABS_PER_SIGMA,
+    median_abs_error_mps,
+    p_within,
+    sigma_after_loss_mps,
+    steady_state,
+)
 from glmav_observer.estimation.observer import G_MPS2, gamma_body_mps2
 from glmav_observer.evaluation import read_log_bytes
 from glmav_observer.frames import e_exact
@@ -81,6 +88,8 @@ SIM_FLIGHTS: tuple[tuple[str, str | None], ...] = (
     ("climbing-turn", "autopilot"),
     ("autopilot-cruise", None),
 )
+#: the glmav-sitl flights in wind (their labels start so)
+WIND_FLIGHTS: tuple[str, ...] = ("gusts", "autopilot-cruise")
 #: glmav-sitl flight length, s: 50 s of learning windows + the 60 s horizon
 SIM_DURATION_S = 110.0
 HORIZON_S = 60.0
@@ -345,11 +354,15 @@ def _rms_between(t: FloatArray, e: FloatArray, a: float, b: float) -> float:
     return float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else math.nan
 
 
-def run_flight(fl: Flight, *, d_forced: bool = False) -> list[dict[str, Any]]:
+def run_flight(
+    fl: Flight, *, d_forced: bool = False, model_config: DragModelConfig | None = None
+) -> list[dict[str, Any]]:
     """All cases of a flight: the model learns once up to each loss time (snapshots).
     ``d_forced``: also the d cases with d aided (off by default, ``aided_axes``), marked
-    ``"variant": "d aided"``."""
-    model = DragModel(DragModelConfig(control=fl.control is not None))
+    ``"variant": "d aided"``. ``model_config``: the model's settings (default: the
+    service's), its ``control`` set by the flight."""
+    base = model_config or DragModelConfig()
+    model = DragModel(dataclasses.replace(base, control=fl.control is not None))
     cases: list[dict[str, Any]] = []
     k = 0
     for t_loss in loss_times_s(fl):
@@ -401,6 +414,106 @@ def sim_flights(scenario: str, profile: str | None, seed: int, tmp: Path) -> lis
         flight_from_samples(label, "glmav-sitl", samples),
         flight_from_samples(f"{label} +cyclic", "glmav-sitl+cyclic", samples, ControlMapping()),
     ]
+
+
+def sim_floor(scenario: str, profile: str | None) -> list[dict[str, Any]]:
+    """The lost-axis floor (``estimation/aero/floor.py``) of a glmav-sitl flight, per
+    horizontal axis: the σ of an oracle filter with a perfect drag model, the true mean
+    wind and gusts, the simulator's own IMU noise, bias random walk, turbulence and
+    velocity rate and noise (read through its loaders), at +10 s and +HORIZON_S after a
+    hand-over from the healthy oracle. No estimator does better (docs/observer.md)."""
+    from glmav_sitl.scenario import load_scenario
+    from glmav_testkit.aero_floor import sitl_floor_model
+
+    sc = load_scenario(scenario)
+    if profile is not None:
+        sc = dataclasses.replace(sc, sensor_profile=profile)
+    out = []
+    for axis in (0, 1):
+        m = sitl_floor_model(sc, axis)
+        s10, s60 = (float(x) for x in sigma_after_loss_mps(m, np.array([10.0, HORIZON_S])))
+        out.append(
+            {
+                "flight": f"{scenario}/{sc.sensor_profile}",
+                "axis": NED_AXES[axis],
+                "turbulence_sigma_mps": m.turbulence_sigma_mps,
+                "turbulence_tau_s": m.turbulence_time_constant_s,
+                "velocity_rate_hz": m.velocity_rate_hz,
+                "floor_sigma10_mps": s10,
+                "floor_sigma60_mps": s60,
+                "floor_sigma_steady_mps": math.sqrt(float(steady_state(m)[0, 0])),
+                "floor_median10_mps": median_abs_error_mps(s10),
+                "floor_median60_mps": median_abs_error_mps(s60),
+                # per case: |e| within the issue's worst-case bounds (F7)
+                "floor_p10_within_worst": p_within(BOUND_10S_WORST, s10),
+                "floor_p60_within": p_within(BOUND_60S, s60),
+                # σ at whole seconds since the loss, for the figure
+                "floor_curve_sigma_mps": [
+                    round(float(x), 4)
+                    for x in sigma_after_loss_mps(m, np.arange(int(HORIZON_S) + 1, dtype=float))
+                ],
+                "dr_oracle_sigma60_mps": float(
+                    sigma_after_loss_mps(m, np.array([HORIZON_S]), aided=False)[0]
+                ),
+            }
+        )
+    return out
+
+
+def floor_rows(
+    floors: Sequence[dict[str, Any]], rows: Sequence[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """The floor beside the benchmark's aided (+cyclic, what the service does) and dead
+    reckoning errors of the same flight and axis (medians and worst over its 5 losses)."""
+    out = []
+    for f in floors:
+        cs = [
+            c
+            for c in rows
+            if c["source"] == "glmav-sitl+cyclic"
+            and c["flight"] == f"{f['flight']} +cyclic"
+            and c["axis"] == f["axis"]
+        ]
+        if not cs:
+            continue
+        out.append(
+            {
+                "flight": f["flight"],
+                "axis": f["axis"],
+                "sigma_w": f["turbulence_sigma_mps"],
+                "floor σ +10": f["floor_sigma10_mps"],
+                "floor median +10": f["floor_median10_mps"],
+                "aided median +10": statistics.median(c["err10_aided_mps"] for c in cs),
+                "DR median +10": statistics.median(c["err10_dr_mps"] for c in cs),
+                "floor σ +60": f["floor_sigma60_mps"],
+                "floor median +60": f["floor_median60_mps"],
+                "aided median +60": statistics.median(c["err60_aided_mps"] for c in cs),
+                "DR median +60": statistics.median(c["err60_dr_mps"] for c in cs),
+                "aided worst +60": max(c["err60_aided_mps"] for c in cs),
+                "P(≤0.2 at +10)": f["floor_p10_within_worst"],
+                "P(≤0.3 at +60)": f["floor_p60_within"],
+            }
+        )
+    return out
+
+
+#: the floor table's columns, in order (the JSON is written with its keys sorted)
+FLOOR_TABLE_KEYS: tuple[str, ...] = (
+    "flight",
+    "axis",
+    "sigma_w",
+    "floor σ +10",
+    "floor median +10",
+    "aided median +10",
+    "DR median +10",
+    "floor σ +60",
+    "floor median +60",
+    "aided median +60",
+    "DR median +60",
+    "aided worst +60",
+    "P(≤0.2 at +10)",
+    "P(≤0.3 at +60)",
+)
 
 
 def summarize(cases: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -504,12 +617,13 @@ def run(quick: bool = False) -> dict[str, Any]:
         "glmav-sitl + cyclic, in wind (gusts, autopilot-cruise; n, e)": [
             c
             for c in horiz
-            if c["source"] == "glmav-sitl+cyclic" and c["flight"].startswith(("gusts", "autopilot"))
+            if c["source"] == "glmav-sitl+cyclic" and c["flight"].startswith(WIND_FLIGHTS)
         ],
     }
     for fl in flights:
         groups[f"{fl.name} n,e"] = [c for c in horiz + sim_drag_only if c["flight"] == fl.name]
     summary = {name: summarize(cs) for name, cs in groups.items()}
+    floors = [f for s, p in sim for f in sim_floor(s, p)]
     cost = learn_cost_s()
     h = summary["horizontal (n, e)"]
     a = summary["all"]
@@ -564,6 +678,8 @@ def run(quick: bool = False) -> dict[str, Any]:
         "summary": summary,
         "rows": rows,
         "rows_d_aided": d_forced,
+        "floor": floors,
+        "floor_vs_cases": floor_rows(floors, rows),
         "cost": cost,
         "flights": [
             {
@@ -661,6 +777,21 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"Wall time {result['wall_s']['total']:.0f} s ({result['wall_s']['data']:.0f} s reading "
         "and simulating).",
         "",
+        "### The floor (glmav-sitl)",
+        "",
+        "The best lost-axis error any estimator can reach through drag on these flights",
+        "(`estimation/aero/floor.py`): the σ of an oracle Kalman filter with a *perfect* drag",
+        "model, the true mean wind and gusts, fusing glmav-sitl's own IMU (noise 4e-3",
+        "m/s²/√Hz, bias random walk 6e-3 m/s³/√Hz) and left with the turbulence σ_w (τ 1 s)",
+        "it cannot measure, from a hand-over by the healthy oracle. `floor median` = 0.674 σ",
+        "(a Gaussian's median |e|); `P(≤0.2 at +10)`, `P(≤0.3 at +60)`: the probability that",
+        "one case of the oracle meets issue 13's worst-case bounds. Beside it the medians",
+        "of this benchmark's aided (`+cyclic`) and dead-reckoning errors on the same flight",
+        "and axis (5 losses each), m/s. The calm climbing turn has a floor of 0: there only",
+        "the model limits.",
+        "",
+        format_table([{k: r[k] for k in FLOOR_TABLE_KEYS} for r in result["floor_vs_cases"]]),
+        "",
         "### Per case",
         "",
         format_table(crows),
@@ -690,9 +821,17 @@ def plot(result: dict[str, Any], path: Path = FIGURE) -> Path:
             "glmav-sitl + cyclic, aided > 50 %",
             [c for c in rows if c["source"] == "glmav-sitl+cyclic" and c["aided_fraction"] > 0.5],
         ),
+        (
+            "glmav-sitl + cyclic in wind, and the floor",
+            [
+                c
+                for c in rows
+                if c["source"] == "glmav-sitl+cyclic" and c["flight"].startswith(WIND_FLIGHTS)
+            ],
+        ),
     ]
     t = np.arange(int(HORIZON_S) + 1)
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8), sharex=True)
+    fig, axes = plt.subplots(1, 5, figsize=(20, 3.8), sharex=True)
     for ax, (title, cases) in zip(axes, panels, strict=True):
         for key, color, label in (
             ("curve_dr_mps", "tab:red", "dead reckoning"),
@@ -704,6 +843,29 @@ def plot(result: dict[str, Any], path: Path = FIGURE) -> Path:
             ax.plot(t, np.median(curves, axis=0), color=color, label=f"{label}, median")
             ax.plot(t, curves.max(axis=0), color=color, ls=":", label=f"{label}, worst")
         ax.axhline(BOUND_60S, color="gray", lw=0.8, ls="--")
+        if title.endswith("the floor"):
+            # the oracle's median |e| (0.674 σ) and its 95th percentile (1.96 σ), per flight
+            floors = [f for f in result.get("floor", []) if f["flight"].startswith(WIND_FLIGHTS)]
+            for f in floors:
+                if f["axis"] != "n":
+                    continue
+                sig = np.asarray(f["floor_curve_sigma_mps"])
+                ax.plot(
+                    t,
+                    MEDIAN_ABS_PER_SIGMA * sig,
+                    color="tab:green",
+                    lw=0.9,
+                    label="floor, median" if f is floors[0] else None,
+                )
+                ax.plot(
+                    t,
+                    1.96 * sig,
+                    color="tab:green",
+                    lw=0.9,
+                    ls=":",
+                    label="floor, 95 %" if f is floors[0] else None,
+                )
+            ax.legend(fontsize=7)
         ax.set_title(f"{title} ({len(cases)} cases)", fontsize=9)
         ax.set_xlabel("time since the loss (s)")
         ax.set_yscale("log")

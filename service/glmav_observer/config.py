@@ -187,6 +187,8 @@ _BOUNDS: dict[str, Check] = {
     "metrics_skip_s": within(0.0, 3600.0),
     "gamma_full_min": within(0.0, 1000.0, lo_open=True),
     "gamma_full_max": within(0.0, 1000.0, lo_open=True),
+    "aero_prior_k_per_s": within(0.0, 10.0),
+    "aero_prior_k_sigma_per_s": within(0.0, 10.0, lo_open=True),
     # [estimation.aero_control]: SERVO_OUTPUT_RAW channel map (estimation/aero/control.py)
     "omega2_channel": within(1, 16),
     "dcx_channel": within(1, 16),

@@ -49,6 +49,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from glmav_observer.configurations import CONFIG_WITHOUT_AXIS, CONFIGS, LOST_AXIS_OF_CONFIG
+from glmav_observer.estimation.aero import DragModelConfig
 from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
@@ -106,6 +107,10 @@ class EstimatorConfig:
     #: SERVO_OUTPUT_RAW's channel map for the cyclic regressors of the drag model
     #: (``[estimation.aero_control]``; None: SERVO_OUTPUT_RAW is ignored)
     aero_control: ControlMapping | None = None
+    #: an informed prior on the drag model's linear drag k, 1/s (``DragModelConfig.prior_k``,
+    #: from the vehicle file: 0.437 for glmav-sitl's default vehicle), and its σ; 0: off
+    aero_prior_k_per_s: float = 0.0
+    aero_prior_k_sigma_per_s: float = 0.03
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
@@ -133,7 +138,15 @@ class VehicleEstimator:
         self.out = RecordBuilder(sysid, config.health_rate_hz)
         #: kept across restarts: what the vehicle's drag is does not change with a gap
         self.aiding = (
-            LostAxisAiding(config.fdi.sigma_handover_mps, control=config.aero_control)
+            LostAxisAiding(
+                config.fdi.sigma_handover_mps,
+                model_config=DragModelConfig(
+                    prior_k=(config.aero_prior_k_per_s, config.aero_prior_k_sigma_per_s)
+                )
+                if config.aero_prior_k_per_s > 0.0
+                else None,
+                control=config.aero_control,
+            )
             if config.aero_aiding
             else None
         )

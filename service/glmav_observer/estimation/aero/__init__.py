@@ -1,6 +1,6 @@
 """Self-calibrating aerodynamic aiding of a lost earth velocity axis (issue 13).
 
-Two modules by concept:
+Four modules by concept:
 
 - :mod:`.model`: :class:`DragModel`, the per-body-axis drag fit learnt while every axis is
   healthy, its own tests, and the pseudo-measurement of a lost axis;
@@ -10,7 +10,10 @@ Two modules by concept:
 - :mod:`.control`: :class:`~.control.ControlMapping`, the swash-plate cyclic regressors
   (C1) from ``SERVO_OUTPUT_RAW``, the model's optional control term
   (``DragModelConfig(control=True)``: then ``learn`` and ``update_from_model`` take
-  ``control=(ρ_x, ρ_y)``).
+  ``control=(ρ_x, ρ_y)``);
+- :mod:`.floor`: the best lost-axis error any estimator can reach through drag in
+  turbulence (an oracle Kalman filter's Riccati recursion; not used by the estimator,
+  it says which of issue 13's bounds a wind allows).
 
 Use from the estimator (per vehicle)::
 

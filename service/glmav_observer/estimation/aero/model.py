@@ -190,6 +190,14 @@ class DragModelConfig:
     control: bool = False
     #: prior σ of b_j, m/s² per unit of ρ: uninformed (the default GLMAV's is 1.1)
     prior_sigma_control: float = 5.0
+    #: an informed prior on the linear drag k_j of both rows, (mean 1/s, σ 1/s), e.g. from
+    #: the vehicle file (equations.md eqs. 7-8 linearised in the rotor's downwash:
+    #: k ≈ ρ S C v_dw / (2m), 0.437 1/s for glmav-sitl's default vehicle). With it a row
+    #: whose body speed barely varied (a hover: k not identifiable from the data) passes
+    #: the spread test while its k is prior-dominated (posterior variance ≥ half the
+    #: prior's) and still has to pass the k test (k ≥ k_z_min σ(k)). None (default):
+    #: uninformed (σ prior_sigma_theta[1] around 0), the model bit for bit as without it
+    prior_k: tuple[float, float] | None = None
 
 
 class PseudoMeasurement(NamedTuple):
@@ -219,13 +227,20 @@ class DragModel:
         #: parameters per body axis: the drag's N_PARAM, and b with the cyclic regressor
         self.n_param = N_PARAM + (1 if cfg.control else 0)
         n = self.n_param
-        sig0 = (*cfg.prior_sigma_theta, cfg.prior_sigma_control)[:n]
+        sig0 = list((*cfg.prior_sigma_theta, cfg.prior_sigma_control)[:n])
+        th0 = [0.0] * n
+        if cfg.prior_k is not None:
+            th0[_K], sig0[_K] = cfg.prior_k
         #: prior information Λ₀ = diag(1/σ_θ²), per axis (2, n, n)
         self._lam0 = np.broadcast_to(np.diag(1.0 / np.asarray(sig0) ** 2), (2, n, n)).copy()
+        #: Λ₀θ₀ per axis, θ₀ the prior mean (0 but for an informed k: then not None)
+        self._lam0_th0: FloatArray | None = (
+            np.einsum("jpq,q->jp", self._lam0, np.asarray(th0)) if cfg.prior_k is not None else None
+        )
         #: θ and P = Λ⁻¹ = Cov(θ) per axis as plain floats (small fixed sizes: a learn call
         #: in Python floats costs less than ~40 numpy calls on 5-vectors); numpy views of
         #: them are built on demand (:attr:`_theta`, :attr:`_P`)
-        self._th: list[list[float]] = [[0.0] * n for _ in range(2)]
+        self._th: list[list[float]] = [list(th0) for _ in range(2)]
         self._Pl: list[list[list[float]]] = np.linalg.inv(self._lam0).tolist()
         self._np_cache: tuple[FloatArray, FloatArray] | None = None
         #: Σ (1 − λ) since the prior was last put back (module docstring)
@@ -395,10 +410,13 @@ class DragModel:
 
     def _put_prior_back(self) -> None:
         """Λ += w Λ₀ (w the forgetting collected since the last time); θ = Λ⁻¹η with η
-        unchanged (θ₀ = 0): θ ← Λ_new⁻¹ Λ_old θ."""
+        unchanged (θ₀ = 0): θ ← Λ_new⁻¹ Λ_old θ; with an informed k (``prior_k``) η also
+        gains w Λ₀θ₀ (forgetting towards the prior's mean)."""
         lam_old = np.linalg.inv(self._P)
         lam_old = 0.5 * (lam_old + np.swapaxes(lam_old, 1, 2))
         eta = np.einsum("jpq,jq->jp", lam_old, self._theta)
+        if self._lam0_th0 is not None:
+            eta = eta + self._prior_due * self._lam0_th0
         P = np.linalg.inv(lam_old + self._prior_due * self._lam0)
         self._Pl = P.tolist()
         self._th = np.einsum("jpq,jq->jp", P, eta).tolist()
@@ -550,7 +568,13 @@ class DragModel:
                 var_f = max(self._res_sum[j] / n, floor2)
                 k = self._th[j][_K]
                 var_k = self._Pl[j][_K][_K]
-                if spread2 < cfg.speed_spread_min_mps**2:
+                if spread2 < cfg.speed_spread_min_mps**2 and not (
+                    # with an informed k, a row whose k is the prior's (the data carry at
+                    # most as much information on k as the prior: posterior variance ≥
+                    # half the prior's) needs no spread; data that low-spread speeds made
+                    # "identify" k are refused as before
+                    cfg.prior_k is not None and var_k >= 0.5 * cfg.prior_k[1] ** 2
+                ):
                     failed.append("spread")
                 elif var_f > cfg.sigma_f_max_mps2**2:
                     failed.append("residual")
