@@ -49,6 +49,8 @@ SECONDS = 20.0
 DESIGN_DATAGRAMS_PER_S = 381.0
 #: 100 vehicles on 2 cores: CPU µs per datagram for everything
 BUDGET_US = 2.0e6 / (100 * DESIGN_DATAGRAMS_PER_S)
+#: the stage table's columns
+COLUMNS = ("stage", "us_per_datagram", "share_of_whole", "min_us", "max_us")
 
 
 def _cpu_per_item_us(fn: Callable[[], int], repeats: int) -> tuple[float, list[float]]:
@@ -195,7 +197,8 @@ def to_markdown(result: dict[str, Any]) -> str:
             f"rates), {result['samples']} samples, {result['records_per_datagram']:.2f} records "
             "per datagram; CPU time per datagram, median of repeats, one core.",
             format_goals(result["goals"]),
-            format_table(result["rows"]),
+            # the JSON's keys come back sorted: the columns in their own order
+            format_table([{k: r[k] for k in COLUMNS} for r in result["rows"]]),
             "The budget: 100 vehicles × 381 datagrams/s on 2 cores leave "
             f"{result['budget_us']:.1f} µs of CPU per datagram for the generator, the "
             "receiving parent and the workers together. `estimate` runs the bank at every "
