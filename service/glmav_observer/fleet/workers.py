@@ -10,7 +10,8 @@ Bytes without a MAVLink header go to worker 0 (its decoder counts them as garbag
 
 Datagrams go one per frame batch through a ``multiprocessing`` pipe per worker: the
 parent gathers what it reads (at most ``BATCH`` items per worker, for at most
-``FLUSH_AFTER_S`` = 1 ms) and sends the list at once. Stream links (TCP, serial) are cut into frames here by the header's
+``FLUSH_AFTER_S`` = 1 ms) and sends the list at once; to a worker that got nothing for
+``FLUSH_AFTER_S`` (idle, at low rates) what was read goes at once, not 1 ms later. Stream links (TCP, serial) are cut into frames here by the header's
 length (a frame is taken when a magic byte follows it or the buffer ends with it, as the
 decoder's own resync rule does), and each frame goes to its vehicle's worker.
 
@@ -44,6 +45,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+import math
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -133,6 +135,8 @@ class _Worker:
     results: multiprocessing.connection.Connection  # parent reads
     vehicles: list[int] = field(default_factory=list)
     batch: list[tuple[str, float, bytes, Any]] = field(default_factory=list)
+    #: arrival time (the loop's clock) of the newest item of the last batch sent
+    flushed_s: float = -math.inf
     routed: int = 0
     result: WorkerResult | None = None
 
@@ -204,6 +208,7 @@ class ShardedServer:
         except (BrokenPipeError, OSError):
             self.counters["items_lost_worker_gone"] += len(w.batch)
         w.routed += len(w.batch)
+        w.flushed_s = w.batch[-1][1]
         w.batch = []
 
     def route_datagram(self, link_id: str, data: bytes, t_arrival_s: float, peer: Any) -> None:
@@ -232,7 +237,9 @@ class ShardedServer:
                     lk.read()  # down: reconnect with backoff
                 else:
                     by_fd[fd] = (lid, lk)
-            pending = [w.batch[0][1] for w in self.workers if w.batch]
+            # a batch goes when its oldest item has waited FLUSH_AFTER_S, or at once when
+            # the worker got nothing for that long (idle: nothing to gather for)
+            pending = [min(w.batch[0][1], w.flushed_s) for w in self.workers if w.batch]
             wait_s = 0.05
             if pending:
                 wait_s = max(0.0, min(pending) + FLUSH_AFTER_S - clock())
@@ -261,7 +268,7 @@ class ShardedServer:
                     break
             now = clock()
             for w in self.workers:
-                if w.batch and now - w.batch[0][1] >= FLUSH_AFTER_S:
+                if w.batch and now - min(w.batch[0][1], w.flushed_s) >= FLUSH_AFTER_S:
                     self._flush(w)
         for w in self.workers:
             self._flush(w)
