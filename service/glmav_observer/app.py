@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import copy
 import dataclasses
 import logging
 import math
@@ -167,7 +168,7 @@ class Service:
         v = self.ingest.vehicles[sysid]
         old = self._retired.pop(sysid, None)
         est = VehicleEstimator(
-            sysid, self.config.estimation, input_counters=lambda: v.counters, rates_fn=v.rates.rates
+            sysid, self.config.estimation, input_counters=v.input_counters, rates_fn=v.rates.rates
         )
         if old is not None:  # a vehicle seen again after eviction keeps its history
             est.faults, est.switches = old.faults, old.switches
@@ -364,6 +365,15 @@ class Service:
             messages=self.messages,
             failed_sinks=list(self.failed_sinks),
         )
+
+    def copy_state(self) -> Service:
+        """A deep copy of this service: its ingest, estimators, counters and sinks (for
+        replaying several variants of one log from a shared prefix,
+        :func:`glmav_observer.evaluation.replay_cases`). The copy shares the MAVLink
+        encoder, which holds no estimation state (it encodes the rate requests and
+        their sequence numbers would then interleave): copy a service that replays, not
+        one that sends."""
+        return copy.deepcopy(self, {id(self._mav): self._mav})
 
     def close(self) -> None:
         """Close every sink once (files flushed)."""

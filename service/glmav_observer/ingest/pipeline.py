@@ -140,6 +140,11 @@ class VehicleInput:
     #: samples are withheld from estimation: two sources share the system id
     conflict: bool = False
 
+    def input_counters(self) -> collections.Counter[str]:
+        """What this vehicle's input counted (a bound method, not a closure: a copy of the
+        service, :meth:`glmav_observer.app.Service.copy_state`, then reads its own)."""
+        return self.counters
+
 
 class Ingest:
     """Turns decoded messages into per-vehicle samples in vehicle-time order."""

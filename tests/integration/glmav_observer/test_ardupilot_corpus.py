@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from glmav_observer.evaluation import ImuShock, LogResult, VelocityFault, replay
+from glmav_observer.evaluation import ImuShock, LogResult, VelocityFault, replay, replay_cases
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
 #: Velocity-axis isolations (an ``accel_bias`` event isolates no axis).
@@ -129,12 +129,41 @@ INJECTED = [
 ]
 
 
+def _fault(axis: int, kind: Any, size: float) -> VelocityFault:
+    return VelocityFault(axis, kind, T_ON_S, T_ON_S + FAULT_LENGTH_S, size)
+
+
+@functools.cache
+def _injected(name: str) -> dict[VelocityFault, LogResult]:
+    """Every injected case of one log, replayed from one shared prefix (``replay_cases``:
+    the same results as one ``replay`` per case, asserted below)."""
+    faults = [_fault(a, k, s) for n, a, k, s in INJECTED if n == name]
+    return dict(zip(faults, replay_cases(_log(name), [(f,) for f in faults]), strict=True))
+
+
+def test_cases_from_a_shared_prefix_are_the_separate_replays() -> None:
+    """``replay_cases`` copies the service's state at the first message a fault could
+    change: each case must be exactly what its own replay gives (bit for bit)."""
+    fault = _fault(*INJECTED[1][1:])  # a_quad_wind, e biased by 1 m/s
+    shared = _injected(INJECTED[1][0])[fault]
+    alone = replay(_log(INJECTED[1][0]), faults=(fault,))
+    assert (shared.isolations, shared.switches, shared.counters) == (
+        alone.isolations,
+        alone.switches,
+        alone.counters,
+    )
+    assert shared.collector.series.keys() == alone.collector.series.keys()
+    for config, series in alone.collector.series.items():
+        assert shared.collector.series[config] == series, config
+    assert shared.rmse_ned_mps == alone.rmse_ned_mps
+
+
 @pytest.mark.parametrize(("name", "axis", "kind", "size"), INJECTED)
 def test_injected_velocity_fault_is_isolated_handed_over_and_recovered(
     name: str, axis: int, kind: Any, size: float
 ) -> None:
-    fault = VelocityFault(axis, kind, T_ON_S, T_ON_S + FAULT_LENGTH_S, size)
-    r = _replay(name, (fault,))
+    fault = _fault(axis, kind, size)
+    r = _injected(name)[fault]
     iso = _axis_isolations(r)
     assert iso, f"{fault} not isolated"
     first = iso[0]
