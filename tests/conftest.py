@@ -1,14 +1,45 @@
-"""Shared test fixtures: loopback ports and the logs in tests/data."""
+"""Shared test fixtures: loopback ports, the logs in tests/data, and the lock that lets a
+test marked ``exclusive`` run alone among the suite's workers (pytest-xdist)."""
 
 from __future__ import annotations
 
+import fcntl
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _exclusive_among_workers(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[None]:
+    """A readers-writer lock over the suite's workers (``-n 2`` in pyproject's addopts).
+
+    Every test holds ``suite.lock`` shared; a test marked ``exclusive`` (it measures what
+    the machine can hold in real time: drops, latency, failover timing, a flight flown
+    at its real rate) holds it alone, so the other worker does not run a test beside it:
+    those tests get both cores, as they did before the suite ran on two workers. A waiting
+    exclusive test holds ``turnstile.lock``, which every test passes through first, so
+    the other worker cannot keep it waiting. The files live in the run's base directory,
+    which every worker of one run shares (one process without xdist: no one waits)."""
+    run_dir = tmp_path_factory.getbasetemp().parent
+    exclusive = request.node.get_closest_marker("exclusive") is not None
+    with (run_dir / "turnstile.lock").open("a") as gate, (run_dir / "suite.lock").open("a") as lock:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        if exclusive:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # waits for the other worker's test to end
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        else:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+            fcntl.flock(lock, fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def _free_port(kind: int) -> int:

@@ -13,6 +13,10 @@ from pathlib import Path
 
 import pytest
 
+#: a flight flown by MAVSDK at the simulator's real-time rate (or faster, `--speed auto`):
+#: alone among the suite's workers, as a user runs it
+pytestmark = pytest.mark.exclusive
+
 
 def _run_demo(tmp_path: Path, *extra: str) -> str:
     rrd = tmp_path / "demo.rrd"

@@ -29,7 +29,8 @@ from glmav_observer.fleet.claims import CLAIM_PERIOD_S
 from glmav_testkit.fleet_helpers import OBS, SITL, record_fault_tlog, wait_bound_udp
 from glmav_testkit.zenoh_helpers import RouterProcess, client_config, client_session, wait_until
 
-pytestmark = pytest.mark.timeout(240)
+#: failover timing with six processes in real time: alone among the suite's workers
+pytestmark = [pytest.mark.timeout(240), pytest.mark.exclusive]
 
 VEHICLES = 6
 SERVICES = ("svc-a", "svc-b", "svc-c")

@@ -18,6 +18,7 @@ from glmav_testkit.soakrun import soak
 
 @pytest.mark.slow
 @pytest.mark.timeout(240)
+@pytest.mark.exclusive  # it measures drops and latency: both cores, as before xdist
 def test_ten_vehicles_for_half_a_minute_memory_counts_latency() -> None:
     r = soak(n_vehicles=10, duration_s=30.0, warmup_s=10.0, windows=2, traffic="fleet")
     assert r["vehicles"] == list(range(1, 11))
