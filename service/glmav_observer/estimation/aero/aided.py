@@ -105,6 +105,28 @@ class AidedAxisConfig:
     #: rule 2: the first pseudo-measurement after a gap of ``stale_window_s`` decides
     #: alone above this z² (3σ)
     stale_gap_z2: float = 9.0
+    #: rule 4: time constant of the local linear trend of d = z − v_DR the scatter is
+    #: measured about, s. Long enough to hold many of the pseudo-measurement's white
+    #: correlation times (``corr_time_s``, 1 s) and as long as its model part's
+    #: (``model_corr_time_s``, 10 s: that part moves with the trend and is not scatter);
+    #: the dead reckoning's own error over it is a ramp (a constant bias), which the
+    #: trend's slope takes up
+    scatter_trend_s: float = 10.0
+    #: rule 4: window of the mean normalised scatter (exponential, over update time), s:
+    #: ~10 correlation times of the white part, so a pseudo-measurement whose σ is right
+    #: exceeds a mean of 2 with ~3 % probability per window (χ² with 10 degrees of freedom
+    #: / 10); a fitting model's is also well below 1 (σ is conservative: measured
+    #: median 0.04-0.5, largest 1.6, on the corpus coax and heli)
+    scatter_window_s: float = 10.0
+    #: rule 4: the mean normalised scatter above this and the model's σ is not to be
+    #: believed (its pseudo-measurements scatter more than √2 σ about their own trend):
+    #: the axis falls back to dead reckoning. (Measured on the corpus quad, whose model
+    #: is biased out of sample: 1.5-17 median per loss; docs/observer.md)
+    scatter_max: float = 2.0
+    #: rule 4: the trend extrapolates at least this long of its own data before its
+    #: residual is judged, s (one white correlation time: a slope fitted to less is one
+    #: correlated blob)
+    scatter_trend_min_s: float = 1.0
 
 
 class AidedState(NamedTuple):
@@ -158,6 +180,9 @@ class AidedAxis:
         self._t_update_s: float | None = None
         self.n_accepted = 0
         self.n_rejected = 0
+        #: rule 5: updates that set the axis back on the dead reckoning (σ not below its)
+        self.n_dr_better = 0
+        self._dr_better = False
         self._rejections_in_row = 0
         self.stopped = False
         #: why the aiding stopped ("" while it has not)
@@ -176,6 +201,11 @@ class AidedAxis:
         #: rule 2: exponential average of z² against the dead reckoning and its weight
         self._stale_z2 = 0.0
         self._stale_w = 0.0
+        #: rule 4: exponentially weighted sums of the trend's fit of d = z − v_DR against
+        #: the time since the hand-over (Σw, Σwt, Σwt², Σwd, Σwtd), and the mean scatter
+        self._trend = [0.0] * 5
+        self._scatter_z2 = 0.0
+        self._scatter_w = 0.0
 
     # ------------------------------------------------------------------ IMU rate
     def propagate(self, dt_s: float, a_ned_mps2: Sequence[float]) -> None:
@@ -275,6 +305,9 @@ class AidedAxis:
         if self._stale(pm, dt_u):
             self._stop("the pseudo-measurements disagree with dead reckoning")
             return False
+        if self._scatters(pm, dt_u):
+            self._stop("the pseudo-measurements scatter beyond their σ")
+            return False
         var_m = pm.sigma_model_mps**2
         var_white = max(pm.sigma_mps**2 - var_m, 0.0)
         R = var_white * max(1.0, cfg.corr_time_s / dt_u) + var_m * max(
@@ -292,11 +325,24 @@ class AidedAxis:
                 self._stop(f"{cfg.max_rejections} rejections in a row")
             return False
         K = self.P_mps2 / S
+        P_post = max((1.0 - K) * self.P_mps2, var_m)
+        self._rejections_in_row = 0
+        if P_post >= self.P_dr_mps2:
+            # rule 5: after the update the estimate would be no better than the dead
+            # reckoning by its own σ (the model part σ_m, common to every
+            # pseudo-measurement, exceeds the dead reckoning's σ: a model used far from
+            # its data). The better of the two is the dead reckoning: the axis takes it,
+            # and the next pseudo-measurement starts from there (not a stop)
+            self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+            self._since_update_s = math.inf
+            self._dr_better = True
+            self.n_dr_better += 1
+            return False
+        self._dr_better = False
         self.v_mps += K * nu
-        self.P_mps2 = max((1.0 - K) * self.P_mps2, var_m)
+        self.P_mps2 = P_post
         self._since_update_s = 0.0
         self.n_accepted += 1
-        self._rejections_in_row = 0
         return True
 
     def _stop(self, reason: str) -> None:
@@ -362,6 +408,40 @@ class AidedAxis:
         full = self._stale_w >= 1.0 - math.exp(-1.0)
         return full and self._stale_z2 > cfg.stale_nees_max * self._stale_w
 
+    def _scatters(self, pm: PseudoMeasurement, dt_u: float) -> bool:
+        """Rule 4 (module docstring): True when the pseudo-measurements scatter about their
+        own local linear trend against the dead reckoning by more than ``scatter_max``
+        times their variance (mean over ``scatter_window_s``)."""
+        cfg = self.config
+        d = pm.v_mps - self.v_dr_mps
+        t = self._tau_s
+        if dt_u > cfg.scatter_trend_s:
+            # a gap longer than the trend: it no longer says where d is going
+            self._trend = [0.0] * 5
+        lam = math.exp(-dt_u / cfg.scatter_trend_s)
+        sw, swt, swt2, swd, swtd = (lam * x for x in self._trend)
+        w = min(dt_u, 0.2)  # the time this update stands for (rule 2's weighting)
+        judged = False
+        if sw >= cfg.scatter_trend_min_s:
+            t_mean = swt / sw
+            var_t = swt2 / sw - t_mean * t_mean
+            d_mean = swd / sw
+            slope = (swtd / sw - t_mean * d_mean) / var_t if var_t > 1e-9 else 0.0
+            z2 = (d - d_mean - slope * (t - t_mean)) ** 2 / pm.sigma_mps**2
+            decay = math.exp(-dt_u / cfg.scatter_window_s)
+            self._scatter_z2 = decay * self._scatter_z2 + w / cfg.scatter_window_s * z2
+            self._scatter_w = decay * self._scatter_w + w / cfg.scatter_window_s
+            judged = self._scatter_w >= 1.0 - math.exp(-1.0)
+        self._trend = [sw + w, swt + w * t, swt2 + w * t * t, swd + w * d, swtd + w * t * d]
+        return judged and self._scatter_z2 > cfg.scatter_max * self._scatter_w
+
+    @property
+    def scatter_mean_z2(self) -> float:
+        """Rule 4's statistic now: the mean normalised scatter (NaN before it is judged)."""
+        if self._scatter_w < 1.0 - math.exp(-1.0):
+            return math.nan
+        return self._scatter_z2 / self._scatter_w
+
     def state(self, aided_within_s: float = 1.0) -> AidedState:
         """(v, σ, aided, why): aided while an update was accepted in the last
         ``aided_within_s`` seconds."""
@@ -370,6 +450,8 @@ class AidedAxis:
             why = f"dead reckoning: {self.stop_reason}"
         elif aided:
             why = "aided"
+        elif self._dr_better:
+            why = "dead reckoning: the model's σ is not below dead reckoning's"
         elif self.t_s - self._meas_bad_t_s < self.config.meas_holdoff_s:
             why = "dead reckoning: measured axes inconsistent with the IMU"
         else:
