@@ -8,8 +8,8 @@ pseudo-measurement (:meth:`~glmav_observer.estimation.aero.model.DragModel.pseud
 and the two measured axes. It carries the plain dead reckoning of the lost axis alongside
 (same propagation, never updated): every fall-back returns to it.
 
-Two rules decide when the pseudo-measurement is not fused (their reasons in
-:class:`AidedAxisConfig`):
+Four rules decide when the pseudo-measurement is not fused (their reasons in
+:class:`AidedAxisConfig`; a fifth is the model's own, below):
 
 1. **The measured axes must be consistent with the IMU** (the pseudo-measurement is
    computed from them: an error δ in a measured axis i moves the lost axis by
@@ -40,7 +40,25 @@ Two rules decide when the pseudo-measurement is not fused (their reasons in
    tell the IMU from the model and falls back too (never worse than dead reckoning, but
    the aiding's benefit is lost).
 
-A third rule is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
+4. **The pseudo-measurements must not scatter beyond their σ** (a model biased out of
+   sample: ArduPilot's quad, whose frozen model's errors are 2-4σ and vary within
+   seconds, while rule 2 cannot see them against a dead reckoning whose σ has grown).
+   d = z − v_DR is fitted by an exponentially weighted local line over time (time
+   constant 10 s: a bias-driven dead-reckoning error is a ramp, which the slope takes up;
+   the model part of σ, correlated over 10 s, moves with it); each new d's residual about
+   the line's prediction, squared and normalised by σ_z², is averaged over a 10 s
+   exponential window of updates; above 2 (scatter beyond √2 σ; a pseudo-measurement as
+   good as its σ stays ≲ 1) the axis falls back to the dead reckoning from the hand-over
+   for the rest of the loss. Judged once the line has 1 s of data and the window most of
+   its weight. Measured (docs/benchmarks/aero.md): 1.5-17 median per loss on the quad,
+   ≤ 1.6 at any time on the coax and heli.
+5. **The estimate must stay better than the dead reckoning by its own σ.** After an
+   update P ≥ σ_m² (the model part, common to every update); when that is not below
+   P_DR (a model used far from its data early in a loss, while P_DR is small) the axis
+   takes the dead reckoning's value and variance instead, and aiding goes on from there
+   (not a stop).
+
+A sixth rule is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
 "changing"): a model that was being contradicted by its data when the axis was lost (a
 wind change) gives no pseudo-measurement for that loss.
 """
@@ -59,7 +77,7 @@ from glmav_observer.estimation.aero.model import DragModel, FloatArray, PseudoMe
 
 @dataclass(frozen=True, slots=True)
 class AidedAxisConfig:
-    """Noise model of :class:`AidedAxis` and its two rules (module docstring)."""
+    """Noise model of :class:`AidedAxis` and its rules (module docstring)."""
 
     #: white noise of the earth-frame acceleration, m/s²/√Hz (accelerometer noise density
     #: of a small MEMS IMU with vibration, ~0.05; integrates to σ·√t)
@@ -153,8 +171,9 @@ class AidedAxis:
     R = (σ_z² − σ_m²) · max(1, τ_c/Δt_u) + σ_m²·max(1, τ_m/Δt_u); rejected when
     |ν| > 5 √(P + σ_z²); after an accepted update P ≥ σ_m² (the coefficient error is the
     same in every pseudo-measurement and is not averaged away). ``max_rejections`` in a
-    row, a broken model or rule 2 (module docstring) stop the aiding for good and put the
-    axis back on the dead reckoning; rule 1 suspends it.
+    row, a broken model, rule 2 or rule 4 (module docstring) stop the aiding for good and
+    put the axis back on the dead reckoning; rule 1 suspends it; rule 5 puts the axis back
+    on the dead reckoning for that update only.
     """
 
     def __init__(
