@@ -545,7 +545,8 @@ class VehicleEstimator:
         if self.cfg.aero_active and aiding is not None and j is not None:
             # the active estimate is the aided one while the aiding runs; what the filter
             # drops returns to the dead reckoning (aiding.RETURN_TIME_S), not at once
-            off = aiding.active_offset(t, None if st is None else st.v_mps - a_dr[j])
+            f_off = None if st is None else st.v_mps - a_dr[j]  # exactly 0: DR itself
+            off = aiding.active_offset(t, f_off)
             sel.aided_offset_mps = off
             a_ned = sel.active_ned(ned_l, c_int, None, off)
             if off != 0.0:
@@ -557,10 +558,12 @@ class VehicleEstimator:
                     b[1] + off * e_flat[3 * j + 1],
                     b[2] + off * e_flat[3 * j + 2],
                 )
-            if st is not None and a_sigma is not None:
-                # the aided σ, and the part still returning counted in full
-                a_sigma = st.sigma_mps + abs(off - (st.v_mps - a_dr[j]))
+            if st is not None and f_off and a_sigma is not None:
+                # the filter's offset in use: its σ, and the part still returning in full
+                a_sigma = st.sigma_mps + abs(off - f_off)
             elif a_sigma is not None:
+                # the dead reckoning (never aided, or set back): its σ, as without the
+                # aiding (bit for bit when nothing returns), and the returning part
                 a_sigma += abs(off)
         self.out.velocity(t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body)
         if st is not None and j is not None:
