@@ -20,6 +20,14 @@ measured axes that disagree with their IMU prediction; pseudo-measurements that 
 with the dead reckoning: docs/observer.md); when one fires it stops, δ goes back to 0 and
 the ``aided`` estimate *is* the bank's dead reckoning, the ``active`` one.
 
+With ``[estimation] aero_active`` (the default) the ``active`` estimate is the ``aided``
+one while the aiding runs (:meth:`LostAxisAiding.active_offset`): the published offset
+from the dead reckoning is the filter's. When the filter drops its offset (a rule stops
+it, rule 5 sets it back on the dead reckoning, a second axis is isolated) the active
+estimate does not jump back: the dropped part returns to the dead reckoning
+exponentially over ``RETURN_TIME_S`` (a switch of the estimate, bounded like a
+hand-over's: by < 0.05 m/s from one record to the next at ≥ 50 Hz).
+
 With a channel map (``[estimation.aero_control]``, :class:`~glmav_observer.estimation.aero.
 control.ControlMapping`), the vehicle's latest ``SERVO_OUTPUT_RAW`` is held here and its
 cyclic regressors (C1) enter the model: on the first usable one the model is replaced by one
@@ -30,6 +38,7 @@ early); a vehicle that never sends it keeps the drag model alone.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -43,6 +52,13 @@ from glmav_observer.estimation.aero import (
 from glmav_observer.estimation.aero.control import ControlMapping
 
 Vec3 = tuple[float, float, float]
+
+#: time constant of the active estimate's return to the dead reckoning when the aided
+#: offset is dropped, s. A dropped offset of up to 1 m/s (the largest on the corpus:
+#: 0.9 m/s, f_coax_clean n at 65.2 s) then moves the estimate by ≤ 1 · Δt/τ = 0.02 m/s
+#: per record at the corpus's 50 Hz IMU, inside the hand-over's 0.05 m/s jump bound
+#: (benchmarks/corpus.py); after 3 s (3τ) 5 % of it is left
+RETURN_TIME_S = 1.0
 
 
 class LostAxisAiding:
@@ -63,6 +79,17 @@ class LostAxisAiding:
         #: the latest cyclic regressors (ρ_x, ρ_y) and their vehicle time
         self._rho: tuple[float, float] | None = None
         self._t_rho_s = 0.0
+        self._reset_offset()
+
+    def _reset_offset(self) -> None:
+        #: the active estimate's offset: the part dropped by the filter and still
+        #: returning (m/s), the last record's time and offset from the filter, and how
+        #: many times the filter had dropped its offset then (stops and rule 5)
+        self._return_mps = 0.0
+        self._t_offset_s: float | None = None
+        self._filter_offset_mps = 0.0
+        self._drops = 0
+        self._running = False
 
     def hold_control(self, t_s: float, servo_pwm_us: tuple[int, ...]) -> None:
         """A SERVO_OUTPUT_RAW: held (with a channel map; else ignored)."""
@@ -93,11 +120,15 @@ class LostAxisAiding:
         self.model.learn(t_s, f_mean_body_mps2, _e(e_flat), v_ned_mps, self._control_at(t_s))
 
     def start(self, t_s: float, lost_idx: int) -> None:
-        """Axis ``lost_idx`` is lost at ``t_s``: the offset starts at 0, σ the hand-over's."""
+        """Axis ``lost_idx`` is lost at ``t_s``: the offset starts at 0, σ the hand-over's
+        (the new configuration starts from the published active estimate: nothing to
+        return)."""
         self._axis = AidedAxis(lost_idx, 0.0, self.sigma_handover_mps, t_s, self.axis_config)
+        self._reset_offset()
 
     def stop(self) -> None:
         self._axis = None
+        self._reset_offset()
 
     def propagate(self, dt_s: float, a_ned_mps2: list[float]) -> None:
         """Over a step, with the earth-frame acceleration the bank was fed (m/s²; the lost
@@ -127,6 +158,28 @@ class LostAxisAiding:
                 relative_to_mps=v_dr_mps,
                 control=self._control_at(t_s),
             )
+
+    def active_offset(self, t_s: float, filter_offset_mps: float | None) -> float:
+        """The offset of the active estimate's lost axis from its dead reckoning at a
+        record (``aero_active``): the filter's (``filter_offset_mps``, None while the
+        aiding does not run) plus what it dropped since the last record, returning to 0
+        with ``RETURN_TIME_S`` (module docstring)."""
+        axis = self._axis
+        target = 0.0 if filter_offset_mps is None else filter_offset_mps
+        drops = 0 if axis is None else axis.n_dr_better + int(axis.stopped)
+        if self._t_offset_s is not None:
+            self._return_mps *= math.exp(-max(t_s - self._t_offset_s, 0.0) / RETURN_TIME_S)
+            running = filter_offset_mps is not None
+            if drops != self._drops or running != self._running:
+                # the filter set its offset back (a stop, rule 5), or stopped or resumed
+                # running (a second axis isolated, then not): the active estimate keeps
+                # what it published and returns from there
+                self._return_mps += self._filter_offset_mps - target
+        self._t_offset_s = t_s
+        self._drops = drops
+        self._running = filter_offset_mps is not None
+        self._filter_offset_mps = target
+        return target + self._return_mps
 
     def lost_axis(self, v_dr_mps: float) -> AidedState:
         """(v, σ, aided, why) of the lost axis, given its dead-reckoned value now."""

@@ -82,9 +82,12 @@ class RecordBuilder:
         active_ned_mps: Vec3,
         active_sigma_mps: float | None,
         out: list[Record],
+        active_body_mps: Vec3 | None = None,
     ) -> None:
         """The records of one step: every configuration (CONFIGS order: ``body``, ``ned``,
-        ``sigma_lost_mps`` per configuration), then ``active``."""
+        ``sigma_lost_mps`` per configuration), then ``active`` (its body velocity the active
+        configuration's, or ``active_body_mps`` when its NED one was moved: the aiding's
+        offset)."""
         seq = self._seq
         sysid = self.sysid
         for i, (c, lost, health_ok) in enumerate(_CONFIG_HEALTH):
@@ -104,9 +107,10 @@ class RecordBuilder:
             health_a = "dead_reckoning"
         else:
             health_a = "degraded"
+        b_a = (body[a][0], body[a][1], body[a][2]) if active_body_mps is None else active_body_mps
         out.append(
             VelocityRecord(
-                self.sysid, "active", t, (body[a][0], body[a][1], body[a][2]), active_ned_mps,
+                self.sysid, "active", t, b_a, active_ned_mps,
                 LOST_AXIS_OF_CONFIG[active], health_a, self._seqn("active"), active,
                 active_sigma_mps,
             )

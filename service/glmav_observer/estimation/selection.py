@@ -75,6 +75,13 @@ class ActiveSelection:
         self.ref_handover: Reference | None = None
         #: the last switch, until the next record measures its jump
         self.pending: SwitchEvent | None = None
+        #: the active estimate's lost-axis offset from its dead reckoning: the drag
+        #: model's aiding (``aero_active``, :meth:`~glmav_observer.estimation.aiding.
+        #: LostAxisAiding.active_offset`), set at each record; 0 without it. A switch
+        #: starts the new configuration from the active estimate with it, and measures
+        #: its jump against it (the offset at the switch, ``_pending_offset_mps``)
+        self.aided_offset_mps = 0.0
+        self._pending_offset_mps = 0.0
         self._bias_ref: Reference | None = None
         self._bias_obs: Vec3 = (0.0, 0.0, 0.0)
 
@@ -126,7 +133,9 @@ class ActiveSelection:
         started from the active estimate. Returns the event (also kept as :attr:`pending`)
         and whether the lost axis started from the FDI's dead reckoning instead."""
         c_int = ints[1]
-        before = self.active_ned(bank.x_hat_ned_mps().tolist(), c_int)
+        before = self.active_ned(bank.x_hat_ned_mps().tolist(), c_int, None, self.aided_offset_mps)
+        self._pending_offset_mps = self.aided_offset_mps
+        self.aided_offset_mps = 0.0
         v0 = list(before)
         reason = "recovered"
         from_dead_reckoning = False
@@ -160,24 +169,33 @@ class ActiveSelection:
             return None
         self.pending = None
         jump = math.dist(
-            self.active_ned(ned_l, c_int, sw.from_config), self.active_ned(ned_l, c_int)
+            self.active_ned(ned_l, c_int, sw.from_config, self._pending_offset_mps),
+            self.active_ned(ned_l, c_int, None, self.aided_offset_mps),
         )
         return SwitchEvent(
             sw.t_boot_s, sw.from_config, sw.to_config, sw.reason, sw.v_before_ned_mps, jump
         )
 
     def active_ned(
-        self, ned_l: list[list[float]], c_int: Sequence[float], config: str | None = None
+        self,
+        ned_l: list[list[float]],
+        c_int: Sequence[float],
+        config: str | None = None,
+        offset_mps: float = 0.0,
     ) -> Vec3:
         """The active estimate if ``config`` (default: the active one) were active: its NED
-        velocity, its dead-reckoned axis corrected by the fit (``compensate_accel_bias``)."""
+        velocity, its dead-reckoned axis corrected by the fit (``compensate_accel_bias``)
+        and moved by ``offset_mps`` (the aiding's, :attr:`aided_offset_mps`; default 0:
+        the dead reckoning)."""
         config = self.config if config is None else config
         v = ned_l[config_index(config)]
         j = LOST_INDEX_OF_CONFIG[config]
-        if j is None or not self.compensate_accel_bias:
+        if j is None:
             return (v[0], v[1], v[2])
         out = [v[0], v[1], v[2]]
-        out[j] += self._lost_axis_correction(j, c_int)
+        if self.compensate_accel_bias:
+            out[j] += self._lost_axis_correction(j, c_int)
+        out[j] += offset_mps
         return (out[0], out[1], out[2])
 
     def _lost_axis_correction(self, j: int, c_int: Sequence[float]) -> float:

@@ -48,7 +48,12 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from glmav_observer.configurations import CONFIG_WITHOUT_AXIS, CONFIGS, LOST_AXIS_OF_CONFIG
+from glmav_observer.configurations import (
+    CONFIG_WITHOUT_AXIS,
+    CONFIGS,
+    LOST_AXIS_OF_CONFIG,
+    config_index,
+)
 from glmav_observer.estimation.aero import DragModelConfig
 from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.aiding import LostAxisAiding
@@ -104,6 +109,10 @@ class EstimatorConfig:
     gamma_full_max: float = 20.0
     #: learn the drag model while healthy and publish the ``aided`` estimate of a lost axis
     aero_aiding: bool = True
+    #: while the aiding runs, the ``active`` estimate's lost axis is the ``aided`` one
+    #: (issue 13; its rules keep it from being worse than dead reckoning on the corpus:
+    #: docs/observer.md); False: ``active`` dead-reckons the lost axis, ``aided`` beside it
+    aero_active: bool = True
     #: SERVO_OUTPUT_RAW's channel map for the cyclic regressors of the drag model
     #: (``[estimation.aero_control]``; None: SERVO_OUTPUT_RAW is ignored)
     aero_control: ControlMapping | None = None
@@ -524,14 +533,41 @@ class VehicleEstimator:
             if LOST_AXIS_OF_CONFIG[sel.config] is None
             else sigma_dead_reckoning_mps(fdi_cfg, t - sel.t_handover_s)
         )
-        a_ned = sel.active_ned(ned_l, c_int)
+        a_dr = sel.active_ned(ned_l, c_int)  # the lost axis dead-reckoned
         n_faulty = len(self.fdi.faulty_axes())
-        self.out.velocity(t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out)
         aiding = self.aiding
         j = sel.lost_idx
+        st = None
         if aiding is not None and j is not None and aiding.lost_idx == j and n_faulty == 1:
-            st = aiding.lost_axis(a_ned[j])
-            v_aided = [a_ned[0], a_ned[1], a_ned[2]]
+            st = aiding.lost_axis(a_dr[j])
+        a_ned = a_dr
+        a_body: Vec3 | None = None
+        if self.cfg.aero_active and aiding is not None and j is not None:
+            # the active estimate is the aided one while the aiding runs; what the filter
+            # drops returns to the dead reckoning (aiding.RETURN_TIME_S), not at once
+            f_off = None if st is None else st.v_mps - a_dr[j]  # exactly 0: DR itself
+            off = aiding.active_offset(t, f_off)
+            sel.aided_offset_mps = off
+            a_ned = sel.active_ned(ned_l, c_int, None, off)
+            if off != 0.0:
+                # body = Eᵀ v: the offset on NED axis j moves it by off · (row j of E)
+                e_flat = self.bank.e_last_flat()
+                b = body[config_index(sel.config)]
+                a_body = (
+                    b[0] + off * e_flat[3 * j],
+                    b[1] + off * e_flat[3 * j + 1],
+                    b[2] + off * e_flat[3 * j + 2],
+                )
+            if st is not None and f_off and a_sigma is not None:
+                # the filter's offset in use: its σ, and the part still returning in full
+                a_sigma = st.sigma_mps + abs(off - f_off)
+            elif a_sigma is not None:
+                # the dead reckoning (never aided, or set back): its σ, as without the
+                # aiding (bit for bit when nothing returns), and the returning part
+                a_sigma += abs(off)
+        self.out.velocity(t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body)
+        if st is not None and j is not None:
+            v_aided = [a_dr[0], a_dr[1], a_dr[2]]
             v_aided[j] = st.v_mps
             e_flat = self.bank.e_last_flat()
             self.out.aided(t, e_flat, v_aided, sel.config, st.sigma_mps, st.aided, out)

@@ -7,8 +7,9 @@ model learns that force too. A climbing turn (still air, seed 2; one 100 Hz IMU 
 50 Hz attitude, 10 Hz truth: a fifth of the default messages, for the test's time) is
 flown for 57 s, the north measurement is frozen from 25 s for 30 s and the service isolates
 it; the aided north is scored against SIM_STATE beside the dead reckoning the service
-would otherwise publish (``active``), with and without the channel map (the control
-experiment: the same service, the drag model alone).
+publishes as ``active`` with ``[estimation] aero_active = false`` (by default ``active``
+is the aided estimate: tests/integration/glmav_observer/test_aided.py), with and without
+the channel map (the control experiment: the same service, the drag model alone).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ def tlog(tmp_path_factory: pytest.TempPathFactory) -> bytes:
 
 def _fly(data: bytes, control: ControlMapping | None) -> tuple[AidedSink, Service]:
     sink = AidedSink()
-    cfg = ServiceConfig(estimation=EstimatorConfig(aero_control=control))
+    cfg = ServiceConfig(estimation=EstimatorConfig(aero_control=control, aero_active=False))
     service = Service(cfg, [sink])
     injector = FaultInjector([VelocityFault(0, "freeze", T_ON_S, T_ON_S + LOSS_S)])
     for rec in iter_tlog(data, FrameCounters()):

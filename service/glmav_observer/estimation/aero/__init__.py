@@ -4,9 +4,10 @@ Four modules by concept:
 
 - :mod:`.model`: :class:`DragModel`, the per-body-axis drag fit learnt while every axis is
   healthy, its own tests, and the pseudo-measurement of a lost axis;
-- :mod:`.aided`: :class:`AidedAxis`, the lost axis's one-state filter, and the two rules
+- :mod:`.aided`: :class:`AidedAxis`, the lost axis's one-state filter, and the rules
   that keep it from being worse than dead reckoning (measured axes inconsistent with the
-  IMU; pseudo-measurements inconsistent with the dead reckoning);
+  IMU; pseudo-measurements inconsistent with the dead reckoning, or scattering beyond
+  their σ; an estimate that would be less certain than the dead reckoning);
 - :mod:`.control`: :class:`~.control.ControlMapping`, the swash-plate cyclic regressors
   (C1) from ``SERVO_OUTPUT_RAW``, the model's optional control term
   (``DragModelConfig(control=True)``: then ``learn`` and ``update_from_model`` take

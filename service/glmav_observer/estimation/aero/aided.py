@@ -8,8 +8,8 @@ pseudo-measurement (:meth:`~glmav_observer.estimation.aero.model.DragModel.pseud
 and the two measured axes. It carries the plain dead reckoning of the lost axis alongside
 (same propagation, never updated): every fall-back returns to it.
 
-Two rules decide when the pseudo-measurement is not fused (their reasons in
-:class:`AidedAxisConfig`):
+Four rules decide when the pseudo-measurement is not fused (their reasons in
+:class:`AidedAxisConfig`; a fifth is the model's own, below):
 
 1. **The measured axes must be consistent with the IMU** (the pseudo-measurement is
    computed from them: an error δ in a measured axis i moves the lost axis by
@@ -40,7 +40,25 @@ Two rules decide when the pseudo-measurement is not fused (their reasons in
    tell the IMU from the model and falls back too (never worse than dead reckoning, but
    the aiding's benefit is lost).
 
-A third rule is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
+4. **The pseudo-measurements must not scatter beyond their σ** (a model biased out of
+   sample: ArduPilot's quad, whose frozen model's errors are 2-4σ and vary within
+   seconds, while rule 2 cannot see them against a dead reckoning whose σ has grown).
+   d = z − v_DR is fitted by an exponentially weighted local line over time (time
+   constant 10 s: a bias-driven dead-reckoning error is a ramp, which the slope takes up;
+   the model part of σ, correlated over 10 s, moves with it); each new d's residual about
+   the line's prediction, squared and normalised by σ_z², is averaged over a 10 s
+   exponential window of updates; above 2 (scatter beyond √2 σ; a pseudo-measurement as
+   good as its σ stays ≲ 1) the axis falls back to the dead reckoning from the hand-over
+   for the rest of the loss. Judged once the line has 1 s of data and the window most of
+   its weight. Measured (docs/benchmarks/aero.md): 1.5-17 median per loss on the quad,
+   ≤ 1.6 at any time on the coax and heli.
+5. **The estimate must stay better than the dead reckoning by its own σ.** After an
+   update P ≥ σ_m² (the model part, common to every update); when that is not below
+   P_DR (a model used far from its data early in a loss, while P_DR is small) the axis
+   takes the dead reckoning's value and variance instead, and aiding goes on from there
+   (not a stop).
+
+A sixth rule is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
 "changing"): a model that was being contradicted by its data when the axis was lost (a
 wind change) gives no pseudo-measurement for that loss.
 """
@@ -59,7 +77,7 @@ from glmav_observer.estimation.aero.model import DragModel, FloatArray, PseudoMe
 
 @dataclass(frozen=True, slots=True)
 class AidedAxisConfig:
-    """Noise model of :class:`AidedAxis` and its two rules (module docstring)."""
+    """Noise model of :class:`AidedAxis` and its rules (module docstring)."""
 
     #: white noise of the earth-frame acceleration, m/s²/√Hz (accelerometer noise density
     #: of a small MEMS IMU with vibration, ~0.05; integrates to σ·√t)
@@ -105,6 +123,28 @@ class AidedAxisConfig:
     #: rule 2: the first pseudo-measurement after a gap of ``stale_window_s`` decides
     #: alone above this z² (3σ)
     stale_gap_z2: float = 9.0
+    #: rule 4: time constant of the local linear trend of d = z − v_DR the scatter is
+    #: measured about, s. Long enough to hold many of the pseudo-measurement's white
+    #: correlation times (``corr_time_s``, 1 s) and as long as its model part's
+    #: (``model_corr_time_s``, 10 s: that part moves with the trend and is not scatter);
+    #: the dead reckoning's own error over it is a ramp (a constant bias), which the
+    #: trend's slope takes up
+    scatter_trend_s: float = 10.0
+    #: rule 4: window of the mean normalised scatter (exponential, over update time), s:
+    #: ~10 correlation times of the white part, so a pseudo-measurement whose σ is right
+    #: exceeds a mean of 2 with ~3 % probability per window (χ² with 10 degrees of freedom
+    #: / 10); a fitting model's is also well below 1 (σ is conservative: measured
+    #: median 0.04-0.5, largest 1.6, on the corpus coax and heli)
+    scatter_window_s: float = 10.0
+    #: rule 4: the mean normalised scatter above this and the model's σ is not to be
+    #: believed (its pseudo-measurements scatter more than √2 σ about their own trend):
+    #: the axis falls back to dead reckoning. (Measured on the corpus quad, whose model
+    #: is biased out of sample: 1.5-17 median per loss; docs/observer.md)
+    scatter_max: float = 2.0
+    #: rule 4: the trend extrapolates at least this long of its own data before its
+    #: residual is judged, s (one white correlation time: a slope fitted to less is one
+    #: correlated blob)
+    scatter_trend_min_s: float = 1.0
 
 
 class AidedState(NamedTuple):
@@ -131,8 +171,9 @@ class AidedAxis:
     R = (σ_z² − σ_m²) · max(1, τ_c/Δt_u) + σ_m²·max(1, τ_m/Δt_u); rejected when
     |ν| > 5 √(P + σ_z²); after an accepted update P ≥ σ_m² (the coefficient error is the
     same in every pseudo-measurement and is not averaged away). ``max_rejections`` in a
-    row, a broken model or rule 2 (module docstring) stop the aiding for good and put the
-    axis back on the dead reckoning; rule 1 suspends it.
+    row, a broken model, rule 2 or rule 4 (module docstring) stop the aiding for good and
+    put the axis back on the dead reckoning; rule 1 suspends it; rule 5 puts the axis back
+    on the dead reckoning for that update only.
     """
 
     def __init__(
@@ -158,6 +199,9 @@ class AidedAxis:
         self._t_update_s: float | None = None
         self.n_accepted = 0
         self.n_rejected = 0
+        #: rule 5: updates that set the axis back on the dead reckoning (σ not below its)
+        self.n_dr_better = 0
+        self._dr_better = False
         self._rejections_in_row = 0
         self.stopped = False
         #: why the aiding stopped ("" while it has not)
@@ -176,6 +220,11 @@ class AidedAxis:
         #: rule 2: exponential average of z² against the dead reckoning and its weight
         self._stale_z2 = 0.0
         self._stale_w = 0.0
+        #: rule 4: exponentially weighted sums of the trend's fit of d = z − v_DR against
+        #: the time since the hand-over (Σw, Σwt, Σwt², Σwd, Σwtd), and the mean scatter
+        self._trend = [0.0] * 5
+        self._scatter_z2 = 0.0
+        self._scatter_w = 0.0
 
     # ------------------------------------------------------------------ IMU rate
     def propagate(self, dt_s: float, a_ned_mps2: Sequence[float]) -> None:
@@ -275,6 +324,9 @@ class AidedAxis:
         if self._stale(pm, dt_u):
             self._stop("the pseudo-measurements disagree with dead reckoning")
             return False
+        if self._scatters(pm, dt_u):
+            self._stop("the pseudo-measurements scatter beyond their σ")
+            return False
         var_m = pm.sigma_model_mps**2
         var_white = max(pm.sigma_mps**2 - var_m, 0.0)
         R = var_white * max(1.0, cfg.corr_time_s / dt_u) + var_m * max(
@@ -292,11 +344,24 @@ class AidedAxis:
                 self._stop(f"{cfg.max_rejections} rejections in a row")
             return False
         K = self.P_mps2 / S
+        P_post = max((1.0 - K) * self.P_mps2, var_m)
+        self._rejections_in_row = 0
+        if P_post >= self.P_dr_mps2:
+            # rule 5: after the update the estimate would be no better than the dead
+            # reckoning by its own σ (the model part σ_m, common to every
+            # pseudo-measurement, exceeds the dead reckoning's σ: a model used far from
+            # its data). The better of the two is the dead reckoning: the axis takes it,
+            # and the next pseudo-measurement starts from there (not a stop)
+            self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+            self._since_update_s = math.inf
+            self._dr_better = True
+            self.n_dr_better += 1
+            return False
+        self._dr_better = False
         self.v_mps += K * nu
-        self.P_mps2 = max((1.0 - K) * self.P_mps2, var_m)
+        self.P_mps2 = P_post
         self._since_update_s = 0.0
         self.n_accepted += 1
-        self._rejections_in_row = 0
         return True
 
     def _stop(self, reason: str) -> None:
@@ -362,6 +427,40 @@ class AidedAxis:
         full = self._stale_w >= 1.0 - math.exp(-1.0)
         return full and self._stale_z2 > cfg.stale_nees_max * self._stale_w
 
+    def _scatters(self, pm: PseudoMeasurement, dt_u: float) -> bool:
+        """Rule 4 (module docstring): True when the pseudo-measurements scatter about their
+        own local linear trend against the dead reckoning by more than ``scatter_max``
+        times their variance (mean over ``scatter_window_s``)."""
+        cfg = self.config
+        d = pm.v_mps - self.v_dr_mps
+        t = self._tau_s
+        if dt_u > cfg.scatter_trend_s:
+            # a gap longer than the trend: it no longer says where d is going
+            self._trend = [0.0] * 5
+        lam = math.exp(-dt_u / cfg.scatter_trend_s)
+        sw, swt, swt2, swd, swtd = (lam * x for x in self._trend)
+        w = min(dt_u, 0.2)  # the time this update stands for (rule 2's weighting)
+        judged = False
+        if sw >= cfg.scatter_trend_min_s:
+            t_mean = swt / sw
+            var_t = swt2 / sw - t_mean * t_mean
+            d_mean = swd / sw
+            slope = (swtd / sw - t_mean * d_mean) / var_t if var_t > 1e-9 else 0.0
+            z2 = (d - d_mean - slope * (t - t_mean)) ** 2 / pm.sigma_mps**2
+            decay = math.exp(-dt_u / cfg.scatter_window_s)
+            self._scatter_z2 = decay * self._scatter_z2 + w / cfg.scatter_window_s * z2
+            self._scatter_w = decay * self._scatter_w + w / cfg.scatter_window_s
+            judged = self._scatter_w >= 1.0 - math.exp(-1.0)
+        self._trend = [sw + w, swt + w * t, swt2 + w * t * t, swd + w * d, swtd + w * t * d]
+        return judged and self._scatter_z2 > cfg.scatter_max * self._scatter_w
+
+    @property
+    def scatter_mean_z2(self) -> float:
+        """Rule 4's statistic now: the mean normalised scatter (NaN before it is judged)."""
+        if self._scatter_w < 1.0 - math.exp(-1.0):
+            return math.nan
+        return self._scatter_z2 / self._scatter_w
+
     def state(self, aided_within_s: float = 1.0) -> AidedState:
         """(v, σ, aided, why): aided while an update was accepted in the last
         ``aided_within_s`` seconds."""
@@ -370,6 +469,8 @@ class AidedAxis:
             why = f"dead reckoning: {self.stop_reason}"
         elif aided:
             why = "aided"
+        elif self._dr_better:
+            why = "dead reckoning: the model's σ is not below dead reckoning's"
         elif self.t_s - self._meas_bad_t_s < self.config.meas_holdoff_s:
             why = "dead reckoning: measured axes inconsistent with the IMU"
         else:

@@ -390,3 +390,99 @@ def test_a_model_contradicted_while_learning_refuses_itself() -> None:
     tr = model.trust()
     assert not tr.ok and "changing" in tr.reason
     assert model.pseudo_measurement(f2[6], E2[6], v2[6], 0) is None
+
+
+def _scatter_loss(
+    *,
+    scale: float,
+    model_sigma_mps: float = 0.0,
+    seed: int = 0,
+    rate_hz: float = 5.0,
+) -> tuple[AidedAxis, float, float | None]:
+    """Rule 4 alone: n lost at t = 0, the IMU biased by 0.03 m/s² (dead reckoning ramps,
+    0.6 σ_b: rule 2 quiet), pseudo-measurements of n at 5 Hz (a GPS's rate) stating σ =
+    0.1 m/s (or √(0.1² + σ_m²) with a model part σ_m) whose white part really is
+    ``scale`` × 0.1 and whose model part is a Gauss-Markov error of σ_m, τ 10 s (the
+    filter's ``model_corr_time_s``). The hand-over's σ is 0.5 m/s so that rule 2
+    (level against dead reckoning) stays out of the way. Returns the filter, the
+    largest mean scatter and when it stopped (None: never)."""
+    rng = np.random.default_rng(seed)
+    ax = AidedAxis(0, 0.0, 0.5, 0.0)
+    dt = 1.0 / rate_hz
+    phi = math.exp(-dt / 10.0)
+    m = rng.normal(0.0, model_sigma_mps)
+    sigma = math.hypot(0.1, model_sigma_mps)
+    largest = 0.0
+    t_stop: float | None = None
+    for i in range(1, int(60.0 * rate_hz) + 1):
+        t = i * dt
+        truth = 2.0 * math.sin(0.2 * t)
+        ax.propagate(dt, (0.4 * math.cos(0.2 * t) + 0.03, 0.0, 0.0))
+        m = phi * m + math.sqrt(1.0 - phi * phi) * model_sigma_mps * rng.normal()
+        z = truth + m + rng.normal(0.0, scale * 0.1)
+        ax.update(PseudoMeasurement(z, sigma, model_sigma_mps))
+        if not math.isnan(ax.scatter_mean_z2):
+            largest = max(largest, ax.scatter_mean_z2)
+        if ax.stopped and t_stop is None:
+            t_stop = t
+    return ax, largest, t_stop
+
+
+def test_pseudo_measurements_as_scattered_as_their_sigma_say_are_kept() -> None:
+    """Rule 4 raises no alarm on a model whose σ is right, white or slowly varying."""
+    cfg = AidedAxisConfig()
+    ax, largest, t_stop = _scatter_loss(scale=1.0)
+    # white errors of the stated σ: the mean z² about the trend is ≈ 1 less the trend's
+    # share; its 60 s maximum was 1.28-1.48 over 5 seeds (50 samples per 10 s window:
+    # σ of the mean ≈ √(2/50) = 0.2, so the threshold 2 is ≥ 2.6σ above it)
+    assert t_stop is None and not ax.stopped and ax.state().aided
+    assert 1.0 <= largest < cfg.scatter_max
+    # a model part of 0.3 m/s (3 × the white part) moving with τ 10 s: it moves with the
+    # 10 s trend and is not scatter (measured maximum 0.35-0.63 over 5 seeds)
+    ax, largest, t_stop = _scatter_loss(scale=1.0, model_sigma_mps=0.3)
+    assert t_stop is None and not ax.stopped
+    assert largest < 1.0
+
+
+def test_pseudo_measurements_scattering_beyond_their_sigma_fall_back() -> None:
+    """Rule 4: a model whose pseudo-measurements scatter 3× their σ (the corpus quad's
+    out-of-sample errors were 2-4σ) is refused once the window is judged, and the axis
+    is the dead reckoning from then on."""
+    cfg = AidedAxisConfig()
+    ax, largest, t_stop = _scatter_loss(scale=3.0)
+    assert ax.stopped and "scatter beyond their σ" in ax.stop_reason
+    # judged after the trend's 1 s and a full window's weight (1 − e⁻¹ of 10 s of
+    # updates, ≈ 10 s): measured 11.2 s; the mean z² is ≈ 9 (3²) by then (measured 8.1-10.4
+    # over 5 seeds), far above the threshold: more than twice it
+    assert t_stop is not None
+    assert cfg.scatter_trend_min_s + cfg.scatter_window_s * (1.0 - math.exp(-1.0)) <= t_stop
+    assert t_stop <= cfg.scatter_trend_min_s + cfg.scatter_window_s + 0.5
+    assert largest > 2.0 * cfg.scatter_max
+    assert ax.v_mps == ax.v_dr_mps and not ax.state().aided
+    assert "scatter" in ax.state().why
+
+
+def test_a_model_less_certain_than_dead_reckoning_leaves_the_axis_on_it() -> None:
+    """Rule 5: the estimate after an update is at least as uncertain as the
+    pseudo-measurement's model part σ_m (common to every update); a pseudo-measurement
+    whose σ_m exceeds the dead reckoning's σ leaves the axis on the dead reckoning, not
+    on a value the filter itself says is worse; aiding goes on from there."""
+    ax = AidedAxis(0, 0.0, 0.1, 0.0)
+    # 1 s of IMU: dead reckoning's σ² = 0.1² + 0.05² · 1 + 0.05² · 1² = 0.015 (0.122 m/s)
+    for _ in range(25):
+        ax.propagate(0.04, (0.04, 0.0, 0.0))
+    assert ax.P_dr_mps2 == pytest.approx(0.015)
+    # σ_m = 0.3 m/s > 0.122: not fused; v and P are the dead reckoning's
+    assert not ax.update(PseudoMeasurement(0.5, 0.31, 0.3))
+    assert ax.n_dr_better == 1 and ax.n_accepted == 0 and not ax.stopped
+    assert ax.v_mps == ax.v_dr_mps == pytest.approx(0.04)
+    st = ax.state()
+    assert not st.aided and "not below dead reckoning" in st.why
+    # a pseudo-measurement whose model part is small is fused as before
+    ax.propagate(0.04, (0.0, 0.0, 0.0))
+    assert ax.update(PseudoMeasurement(0.1, 0.1, 0.02))
+    assert 0.04 < ax.v_mps < 0.1 and ax.state().aided
+    # after a good update, a model part above the dead reckoning's σ sets it back on it
+    # (the estimate would claim σ ≥ 0.3 > 0.123: worse than the dead reckoning)
+    assert not ax.update(PseudoMeasurement(0.5, 0.31, 0.3))
+    assert ax.v_mps == ax.v_dr_mps and ax.n_dr_better == 2
