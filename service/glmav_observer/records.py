@@ -63,7 +63,9 @@ class VelocityRecord:
     ``source_config`` names the configuration selected. ``lost_axis`` is the NED axis not
     measured (dead reckoned) and ``sigma_lost_mps`` its 1-sigma uncertainty, growing with
     time since hand-over (None when nothing is lost). ``health`` is ``"ok"``,
-    ``"dead_reckoning"`` or ``"degraded"``. ``"aided"`` is published only while one axis is
+    ``"dead_reckoning"`` or ``"degraded"``, and for ``"active"`` also ``"aided"`` while
+    its lost axis is the aided one (``[estimation] aero_active``) with a
+    pseudo-measurement accepted in the last second. ``"aided"`` is published only while one axis is
     lost: the hand-over configuration (``source_config``) with its lost axis aided by the
     learnt drag model; its ``health`` is ``"aided"`` while pseudo-measurements are accepted,
     ``"dead_reckoning"`` otherwise, and ``sigma_lost_mps`` the aided axis's 1σ.

@@ -83,11 +83,12 @@ class RecordBuilder:
         active_sigma_mps: float | None,
         out: list[Record],
         active_body_mps: Vec3 | None = None,
+        active_health: str | None = None,
     ) -> None:
         """The records of one step: every configuration (CONFIGS order: ``body``, ``ned``,
         ``sigma_lost_mps`` per configuration), then ``active`` (its body velocity the active
         configuration's, or ``active_body_mps`` when its NED one was moved: the aiding's
-        offset)."""
+        offset; its health ``active_health`` when given: ``aided``)."""
         seq = self._seq
         sysid = self.sysid
         for i, (c, lost, health_ok) in enumerate(_CONFIG_HEALTH):
@@ -101,7 +102,9 @@ class RecordBuilder:
                 )
             )  # fmt: skip
         a = CONFIGS.index(active)
-        if n_faulty == 0:
+        if active_health is not None:
+            health_a = active_health
+        elif n_faulty == 0:
             health_a = "ok"
         elif n_faulty == 1:
             health_a = "dead_reckoning"

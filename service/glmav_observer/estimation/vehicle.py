@@ -542,6 +542,7 @@ class VehicleEstimator:
             st = aiding.lost_axis(a_dr[j])
         a_ned = a_dr
         a_body: Vec3 | None = None
+        a_health: str | None = None  # None: from the faulty axes (ok, dead_reckoning, ...)
         if self.cfg.aero_active and aiding is not None and j is not None:
             # the active estimate is the aided one while the aiding runs; what the filter
             # drops returns to the dead reckoning (aiding.RETURN_TIME_S), not at once
@@ -561,11 +562,15 @@ class VehicleEstimator:
             if st is not None and f_off and a_sigma is not None:
                 # the filter's offset in use: its σ, and the part still returning in full
                 a_sigma = st.sigma_mps + abs(off - f_off)
+                # ... and the record says so while pseudo-measurements are being accepted
+                a_health = "aided" if st.aided else None
             elif a_sigma is not None:
                 # the dead reckoning (never aided, or set back): its σ, as without the
                 # aiding (bit for bit when nothing returns), and the returning part
                 a_sigma += abs(off)
-        self.out.velocity(t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body)
+        self.out.velocity(
+            t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body, a_health
+        )
         if st is not None and j is not None:
             v_aided = [a_dr[0], a_dr[1], a_dr[2]]
             v_aided[j] = st.v_mps

@@ -13,7 +13,7 @@ vehicle it estimates: system id the vehicle's (or ``system_id``), component id
   covariance diagonal: ``sigma_measured_mps``\\ ^2 on measured axes, ``sigma_lost_mps``\\ ^2
   on a dead-reckoned one; ``estimator_type`` MAV_ESTIMATOR_TYPE_GPS_INS: IMU and attitude
   fused with a velocity measurement; ``reset_counter`` + 1 at each configuration switch;
-  ``quality`` 100 ok, 50 dead reckoning, 1 degraded) and/or VISION_SPEED_ESTIMATE (NED,
+  ``quality`` 100 ok, 75 aided by the drag model, 50 dead reckoning, 1 degraded) and/or VISION_SPEED_ESTIMATE (NED,
   the same covariance); ``time_usec`` is the vehicle's boot time of the estimate;
 - STATUSTEXT for each newly isolated fault and each configuration switch;
 - NAMED_VALUE_FLOAT at ``health_rate_hz``: ``GLV_N``, ``GLV_E``, ``GLV_D`` (axis state:
@@ -43,7 +43,9 @@ log = logging.getLogger(__name__)
 
 AXIS_STATE_CODES = {"warmup": 0, "ok": 1, "suspect": 2, "faulty": 3, "recovering": 4}
 CONFIG_CODES = {c: i for i, c in enumerate(CONFIGS)}
-QUALITY = {"ok": 100, "dead_reckoning": 50, "degraded": 1}
+#: ODOMETRY.quality (%) by the active record's health: an axis aided by the learnt drag
+#: model sits between measured (100) and dead-reckoned (50)
+QUALITY = {"ok": 100, "aided": 75, "dead_reckoning": 50, "degraded": 1}
 HEARTBEAT_PERIOD_S = 1.0
 _SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01
 _AXIS_INDEX = {"n": 0, "e": 1, "d": 2}

@@ -115,8 +115,11 @@ def test_the_active_estimate_is_the_aided_one_while_aided(
         dr = dr_sink.active[r.t_boot_s]
         if a.v_ned_mps[0] != dr.v_ned_mps[0]:
             assert a.sigma_lost_mps == pytest.approx(r.sigma_lost_mps, abs=1e-12)
+            # ... and its health the aided record's: aided while updates are accepted
+            assert a.health == r.health
         else:
             assert a.sigma_lost_mps == dr.sigma_lost_mps
+            assert a.health == dr.health == "dead_reckoning"
         # its body velocity is Eᵀ of its NED one, as the aided record's
         assert a.v_body_mps == pytest.approx(r.v_body_mps, abs=1e-9)
     # before the loss the two services publish the same estimate
