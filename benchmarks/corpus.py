@@ -5,7 +5,7 @@ configuration (``glmav_observer.evaluation.replay``), scored against SIM_STATE; 
 velocity fault kind (bias 0.5 and 1 m/s, freeze, NaN, noise σ 0.5 m/s) on every NED axis of
 the four flights without a velocity-relevant autopilot fault, 10 s long, at two onset
 times. The test suite runs 15 of these cases; this is the table. The 15 cases of one log and
-onset share the replay before the onset (``evaluation.iter_replay_cases``, equal to separate
+onset share the replay before the onset (``evaluation.replay_cases``, equal to separate
 replays bit for bit): 2 min 41 s on 2 cores, from about 5 min with one replay per case.
 
     python -m benchmarks.corpus [--quick]    # writes results/corpus.json, docs/benchmarks/corpus.md
@@ -66,8 +66,8 @@ def _flight(name: str) -> dict[str, Any]:
 
 def _cases_at(args: tuple[str, float]) -> list[dict[str, Any]]:
     """Every axis and kind at one onset of one log, replayed from a shared prefix
-    (``iter_replay_cases``: the same results as one ``replay`` per case)."""
-    from glmav_observer.evaluation import VelocityFault, iter_replay_cases
+    (``replay_cases``: the same results as one ``replay`` per case)."""
+    from glmav_observer.evaluation import VelocityFault, replay_cases
 
     name, t_on = args
     faults = [
@@ -75,7 +75,7 @@ def _cases_at(args: tuple[str, float]) -> list[dict[str, Any]]:
         for axis in range(3)
         for kind, size in KINDS
     ]
-    results = iter_replay_cases(DATA / f"{name}.tlog.xz", [(f,) for f in faults])
+    results = replay_cases(DATA / f"{name}.tlog.xz", [(f,) for f in faults])
     return [_row(name, f, r) for f, r in zip(faults, results, strict=True)]
 
 

@@ -443,7 +443,7 @@ def replay(
     ``config`` is a :class:`glmav_observer.config.ServiceConfig` (default: built-in
     defaults). Scores the vehicle ``sysid`` (default: the first that produced estimates).
     """
-    return replay_cases(path, [faults], config, seed=seed, sysid=sysid)[0]
+    return next(replay_cases(path, [faults], config, seed=seed, sysid=sysid))
 
 
 def _onset_s(f: VelocityFault | ImuShock) -> float:
@@ -461,18 +461,6 @@ def _injectable_at(msg: Any) -> float | None:
 
 
 def replay_cases(
-    path: str | Path,
-    cases: Sequence[Sequence[VelocityFault | ImuShock]],
-    config: Any = None,
-    *,
-    seed: int = 0,
-    sysid: int | None = None,
-) -> list[LogResult]:
-    """:func:`iter_replay_cases` as a list."""
-    return list(iter_replay_cases(path, cases, config, seed=seed, sysid=sysid))
-
-
-def iter_replay_cases(
     path: str | Path,
     cases: Sequence[Sequence[VelocityFault | ImuShock]],
     config: Any = None,
