@@ -500,8 +500,9 @@ def replay_cases(
     for rec in recs[:split]:
         tracker.apply(rec.msg)
         base.feed_message(rec.msg, rec.t_host_us * 1e-6, link)
-    for case in cases:
-        service = base.copy_state() if len(cases) > 1 else base
+    for k, case in enumerate(cases):
+        # the last case continues the prefix's own service: no copy left to make
+        service = base.copy_state() if k < len(cases) - 1 else base
         collector = service.sinks[0]
         assert isinstance(collector, RecordCollector)
         injector = FaultInjector(case, seed)

@@ -8,8 +8,9 @@ pseudo-measurement (:meth:`~glmav_observer.estimation.aero.model.DragModel.pseud
 and the two measured axes. It carries the plain dead reckoning of the lost axis alongside
 (same propagation, never updated): every fall-back returns to it.
 
-Four rules decide when the pseudo-measurement is not fused (their reasons in
-:class:`AidedAxisConfig`; a fifth is the model's own, below):
+Four rules here decide when the pseudo-measurement is not fused (their reasons in
+:class:`AidedAxisConfig`); rule 3 is the model's own, below (docs/observer.md numbers
+them the same):
 
 1. **The measured axes must be consistent with the IMU** (the pseudo-measurement is
    computed from them: an error δ in a measured axis i moves the lost axis by
@@ -58,7 +59,7 @@ Four rules decide when the pseudo-measurement is not fused (their reasons in
    takes the dead reckoning's value and variance instead, and aiding goes on from there
    (not a stop).
 
-A sixth rule is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
+Rule 3 is the model's own (:class:`~glmav_observer.estimation.aero.model.DragModel`,
 "changing"): a model that was being contradicted by its data when the axis was lost (a
 wind change) gives no pseudo-measurement for that loss.
 """
