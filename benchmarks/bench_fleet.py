@@ -8,13 +8,15 @@ cap raised, no rate requests: the generator does not answer them), without sinks
 records are counted: the estimate, not a consumer, is measured):
 
 - ``1 worker``: the single-process service (``serve --workers 1``: ``Service.run``);
-- ``N workers``: ``serve --workers N`` (N = cores): the router reading the port here, N
-  worker processes estimating.
+- ``N workers``: ``serve --workers N`` (N = cores): N worker processes estimating, each
+  reading its own socket of the port (the kernel routes by system id:
+  :mod:`glmav_observer.fleet.reuseport`; where it cannot, the parent reads the port here
+  and passes the datagrams through pipes, and the row's ``routing`` says ``router``).
 
 Per point: datagrams the generator sent, decoded by the service, dropped (sent minus
 decoded: the kernel's receive buffer overflowed because the service fell behind);
 arrival-to-publish latency per datagram (from the read of the socket to the records
-handed to the sinks; for workers, across processes on the shared monotonic clock),
+handed to the sinks; through the router, across processes on the shared monotonic clock),
 p50 and p99; the generator's own CPU (fraction of one core). A mode's curve stops after
 the first point with more than 10 % dropped for one worker (it is saturated; more
 vehicles only drop more); the N-worker curve always runs to 100 vehicles (the goal). The machine is shared: the load average is recorded with every point.
@@ -127,10 +129,18 @@ def _point_single(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
 def _point_sharded(tlog: Path, n: int, seconds: float, workers: int) -> dict[str, Any]:
     port = _free_udp_port()
     cfg = _config(n)
-    server = ShardedServer(worker_specs(cfg, workers))
-    link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
+    conn = f"udpin:127.0.0.1:{port}"
+    server = ShardedServer(
+        worker_specs(cfg, workers),
+        udp_links=[conn],
+        udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
+    )
+    # as serve does: the kernel routes the port to the workers' sockets where it can
+    links = {}
+    if server.router_links:
+        links[conn] = Link(conn, udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
     stop = threading.Event()
-    th = threading.Thread(target=server.run, args=({"udp": link}, stop), daemon=True)
+    th = threading.Thread(target=server.run, args=(links, stop), daemon=True)
     th.start()
     try:
         gen = _generate(tlog, port, n, seconds)
@@ -139,11 +149,13 @@ def _point_sharded(tlog: Path, n: int, seconds: float, workers: int) -> dict[str
         stop.set()
         th.join(30.0)
         drops = udp_queue(port)[1]
-        link.close()
+        for lk in links.values():
+            lk.close()
         result = server.close()
     s = result.summary
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
     row = _row(f"{workers} workers", n, gen, frames_ok, drops, result.latency, len(s.vehicles))
+    row["routing"] = "kernel" if server.kernel_routed else "router"
     row["worker_cpu_s"] = sum(result.worker_cpu_s.values())
     row["worker_us_per_datagram"] = 1e6 * row["worker_cpu_s"] / max(1, frames_ok)
     return row
@@ -162,6 +174,7 @@ def _row(  # noqa: PLR0917 -- one table row's cells, in column order
     lat = hist.summary_ms()
     return {
         "mode": mode,
+        "routing": "one process" if mode == "1 worker" else "",  # the caller fills N workers'
         "vehicles": n,
         "vehicles_seen": vehicles_seen,
         "sent": sent,
@@ -264,12 +277,12 @@ def run(quick: bool = False) -> dict[str, Any]:
 def to_markdown(result: dict[str, Any]) -> str:
     r = result
     m = r.get("machine") or machine()
-    cols = ("mode", "vehicles", "sent_per_s", "dropped_pct", "p50_ms", "p99_ms", "max_ms",
+    cols = ("mode", "routing", "vehicles", "sent_per_s", "dropped_pct", "p50_ms", "p99_ms", "max_ms",
             "worker_us_per_datagram", "generator_core_pct", "load1")  # fmt: skip
     per_vehicle = r["datagrams_per_vehicle_s"]
     table = [
-        {**{k: row.get(k, "") for k in cols[:2]}, "nominal_per_s": row["vehicles"] * per_vehicle,
-         **{k: row.get(k, "") for k in cols[2:]}}
+        {**{k: row.get(k, "") for k in cols[:3]}, "nominal_per_s": row["vehicles"] * per_vehicle,
+         **{k: row.get(k, "") for k in cols[3:]}}
         for row in r["rows"]
     ]  # fmt: skip
     return "\n".join([
@@ -286,10 +299,12 @@ def to_markdown(result: dict[str, Any]) -> str:
         "port; `sent_per_s` is what the generator achieved (about 5 % below nominal from the "
         "staggered starts; further below, the generator itself ran late). "
         "`dropped_pct`: datagrams sent but never decoded (kernel receive-buffer overflow). "
-        "Latency: socket read to records handed to the sinks, per datagram: for 1 worker it "
-        "does not include the time a datagram waited in the kernel's receive buffer (a "
-        "backlog there shows as drops), for N workers it includes the wait in the pipes to "
-        "the workers (a backlog there shows as latency). The 1-worker "
+        "Latency: socket read to records handed to the sinks, per datagram; it does not "
+        "include the time a datagram waited in the kernel's receive buffer (a backlog there "
+        "shows as drops). `routing`: `kernel` when each worker reads its own socket of the "
+        "port (SO_REUSEPORT with the routing program: the same measure as 1 worker), "
+        "`router` when the parent reads it and passes datagrams through pipes (then the "
+        "latency includes the wait in the pipes). The 1-worker "
         f"curve stops after its first point above {SATURATED_DROP_PCT:.0f} % dropped. "
         "`worker_us_per_datagram`: the workers' CPU time per datagram decoded.",
         "",

@@ -2,7 +2,8 @@
 own :class:`~glmav_observer.app.Service` and sinks (:class:`WorkerSpec`), fed by the
 parent's batches, sending back rate requests, a latency histogram and its summary
 (:class:`WorkerResult`). Workers ignore SIGINT/SIGTERM: the parent stops them by closing
-their pipe.
+their pipe; a worker also reads its own socket of each UDP link the kernel routes
+(:mod:`glmav_observer.fleet.reuseport`) and answers its vehicles on it.
 """
 
 from __future__ import annotations
@@ -11,16 +12,20 @@ import contextlib
 import multiprocessing
 import multiprocessing.connection
 import os
+import select
 import signal
+import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from glmav_observer.app import RATE_CHECK_PERIOD_S, Service
+from glmav_observer.app import DRAIN_MAX_READS, RATE_CHECK_PERIOD_S, STOP_DRAIN_S, Service
 from glmav_observer.app_sinks import open_sinks
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.latency import LatencyHistogram
+from glmav_observer.fleet.routing import datagram_sysid, worker_of_sysid
+from glmav_observer.ingest.links import Link
 
 
 class WorkerError(RuntimeError):
@@ -39,6 +44,8 @@ class WorkerSpec:
     rerun_mode: str | None
     claim: bool = False
     log_level: str = "INFO"
+    #: how many workers share the fleet (the routing rule's n)
+    workers: int = 1
     log_format: str = "text"
 
 
@@ -78,13 +85,17 @@ def worker_main(
     spec: WorkerSpec,
     inbox: multiprocessing.connection.Connection,
     outbox: multiprocessing.connection.Connection,
+    sockets: dict[str, socket.socket] | None = None,
 ) -> None:
-    """A worker process: its own Service and sinks, fed by the parent's batches."""
+    """A worker process: its own Service and sinks, fed by the parent's batches and, for
+    the UDP links the kernel routes (``sockets``: link id -> this worker's socket of the
+    group, :mod:`glmav_observer.fleet.reuseport`), by its own reads."""
     from glmav_observer.logs import configure_logging
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     configure_logging(spec.log_level, spec.log_format)
+    direct = {lid: Link(lid, sock=s) for lid, s in (sockets or {}).items()}
     try:
         if spec.index > 0:  # wait until worker 0 has checked the service id on Zenoh
             try:
@@ -97,49 +108,138 @@ def worker_main(
         outbox.send(("error", str(err)))
         return
     outbox.send(("ready", os.getpid()))
-    cpu0, wall0 = time.process_time(), time.monotonic()
-    latency = LatencyHistogram()
-    batches = items = 0
-    n_vehicles = 0
-    next_rate_check = time.monotonic()
-    clock = time.monotonic
+    loop = _WorkerLoop(spec, service, outbox, direct)
     try:
-        while True:
-            if inbox.poll(0.05):
+        loop.run(inbox)
+    finally:
+        service.close()
+        for lk in direct.values():
+            lk.close()
+    result = WorkerResult(
+        spec.index,
+        service.summary(),
+        loop.latency,
+        loop.batches,
+        loop.items,
+        cpu_s=time.process_time() - loop.cpu0,
+        wall_s=time.monotonic() - loop.wall0,
+    )
+    with contextlib.suppress(BrokenPipeError, OSError):  # the parent may be gone
+        outbox.send(("result", result))
+
+
+class _WorkerLoop:
+    """A worker's loop: the parent's batches, its own sockets, rate requests, answers."""
+
+    def __init__(
+        self,
+        spec: WorkerSpec,
+        service: Service,
+        outbox: multiprocessing.connection.Connection,
+        direct: dict[str, Link],
+    ) -> None:
+        self.spec = spec
+        self.service = service
+        self.outbox = outbox
+        self.direct = direct
+        self.latency = LatencyHistogram()
+        self.batches = self.items = 0
+        self.cpu0, self.wall0 = time.process_time(), time.monotonic()
+
+    def run(self, inbox: multiprocessing.connection.Connection) -> None:
+        service, latency, clock = self.service, self.latency, time.monotonic
+        by_fd: dict[int, tuple[str, Link]] = {}
+        for lid, lk in self.direct.items():
+            fd = lk.fileno()
+            assert fd is not None  # a UDP socket: never down
+            by_fd[fd] = (lid, lk)
+        inbox_fd = inbox.fileno()
+        n_vehicles = 0
+        next_rate_check = clock()
+        stop = False
+        while not stop:
+            try:
+                ready, _, _ = select.select([inbox_fd, *by_fd], [], [], 0.05)
+            except InterruptedError:
+                continue
+            for fd in ready:
+                if fd != inbox_fd:
+                    self._read(*by_fd[fd], DRAIN_MAX_READS)
+                    continue
                 try:
                     batch = inbox.recv()
                 except EOFError:
+                    batch = None
+                if batch is None:  # the parent stops us: what our sockets hold is read
+                    stop = True
                     break
-                if batch is None:
-                    break
-                batches += 1
+                self.batches += 1
                 for link_id, t_arrival_s, data, peer in batch:
                     service.current_peer = peer
                     service.feed_bytes(link_id, data, t_arrival_s, datagram=True)
                     latency.add(clock() - t_arrival_s)
-                items += len(batch)
+                self.items += len(batch)
             now = clock()
             nv = len(service.ingest.vehicles)
             if nv != n_vehicles or now >= next_rate_check:
                 n_vehicles = nv
                 service.rate_requests(now)
                 next_rate_check = now + RATE_CHECK_PERIOD_S
-            if service.outbox:
-                outbox.send(("out", list(service.outbox)))
-                service.outbox.clear()
-    finally:
-        service.close()
-    result = WorkerResult(
-        spec.index,
-        service.summary(),
-        latency,
-        batches,
-        items,
-        cpu_s=time.process_time() - cpu0,
-        wall_s=time.monotonic() - wall0,
-    )
-    with contextlib.suppress(BrokenPipeError, OSError):  # the parent may be gone
-        outbox.send(("result", result))
+            self._answer()
+        deadline = time.monotonic() + STOP_DRAIN_S
+        for lid, lk in self.direct.items():
+            while time.monotonic() < deadline and self._read(lid, lk, 64, at_stop=True):
+                pass
+        self._answer()
+
+    def _read(self, lid: str, lk: Link, max_reads: int, *, at_stop: bool = False) -> int:
+        """Read and estimate up to ``max_reads`` datagrams of a kernel-routed link; those
+        of another worker's vehicle (bytes before the header hid its system id from the
+        kernel's program) go to their owner through the parent. Returns datagrams read."""
+        service, clock = self.service, time.monotonic
+        n_workers, me = self.spec.workers, self.spec.index
+        foreign = []
+        n = 0
+        while n < max_reads:
+            data = lk.read()
+            if not data:
+                break
+            n += 1
+            t = clock()
+            sysid = datagram_sysid(data)
+            if (0 if sysid is None else worker_of_sysid(sysid, n_workers)) != me:
+                foreign.append((lid, t, data, lk.peer))
+                continue
+            service.current_peer = lk.peer
+            service.feed_bytes(lid, data, t, datagram=True)
+            self.latency.add(clock() - t)
+            self.items += 1
+        if foreign:
+            if at_stop:  # the parent no longer routes: counted, not lost silently
+                service.counters["datagrams_rerouted_too_late"] += len(foreign)
+            else:
+                with contextlib.suppress(BrokenPipeError, OSError):
+                    self.outbox.send(("route", foreign))
+                service.counters["datagrams_rerouted"] += len(foreign)
+        return n
+
+    def _answer(self) -> None:
+        """Send what the service queued (rate requests): on our own socket for a
+        kernel-routed link, else through the parent, which holds the link."""
+        service = self.service
+        if not service.outbox:
+            return
+        via_parent = []
+        for lid, frame, peer in service.outbox:
+            lk = self.direct.get(lid)
+            if lk is not None:
+                lk.write(frame, peer)
+            else:
+                via_parent.append((lid, frame, peer))
+        service.outbox.clear()
+        if via_parent:
+            with contextlib.suppress(BrokenPipeError, OSError):
+                self.outbox.send(("out", via_parent))
 
 
 def build_service(spec: WorkerSpec) -> Service:

@@ -1,12 +1,18 @@
-"""``serve --workers N``: one receiving process routes datagrams by system id to N workers.
+"""``serve --workers N``: datagrams routed by system id to N worker processes.
 
-The parent process opens the links and reads them (as :meth:`Service.run` does). It does
-not parse MAVLink: it reads the sender's system id from the frame header (MAVLink 2,
-magic 0xFD: byte 5; MAVLink 1, magic 0xFE: byte 3) and hands the bytes, their arrival
-time and the sender's address to the worker that owns that vehicle. A vehicle is given
-to the worker with the fewest vehicles on first sight and stays there, so each
-vehicle's samples are estimated in order by one :class:`~glmav_observer.app.Service`.
-Bytes without a MAVLink header go to worker 0 (its decoder counts them as garbage).
+A vehicle belongs to one worker, by a fixed rule on its system id
+(:func:`~glmav_observer.fleet.routing.worker_of_sysid`), so each vehicle's samples are
+estimated in order by one :class:`~glmav_observer.app.Service`. The system id is read
+from the frame header without parsing the message (MAVLink 2, magic 0xFD: byte 5;
+MAVLink 1, magic 0xFE: byte 3); bytes without a MAVLink header go to worker 0 (its
+decoder counts them as garbage).
+
+``udpin:`` links are routed by the kernel (:mod:`glmav_observer.fleet.reuseport`): each
+worker reads its own socket of the port, and this process does not touch their
+datagrams (it only forwards the rare datagram whose header came after other bytes, which
+the kernel's program sends to worker 0). The other links (TCP, serial, ``udpout:``, and
+``udpin:`` where the OS cannot route by program) are read here, as :meth:`Service.run`
+does, and each item goes to its vehicle's worker with its arrival time and sender.
 
 Datagrams go one per frame batch through a ``multiprocessing`` pipe per worker: the
 parent gathers what it reads (at most ``BATCH`` items per worker, for at most
@@ -15,9 +21,11 @@ parent gathers what it reads (at most ``BATCH`` items per worker, for at most
 length (a frame is taken when a magic byte follows it or the buffer ends with it, as the
 decoder's own resync rule does), and each frame goes to its vehicle's worker.
 
-What workers send back: SET_MESSAGE_INTERVAL frames for their vehicles (the parent
-writes them to the link and address the vehicle was heard on), an arrival-to-publish
-latency histogram, and their :class:`ServiceSummary` at the end, merged here.
+What workers send back: SET_MESSAGE_INTERVAL frames for their vehicles on links read here
+(the parent writes them to the link and address the vehicle was heard on; on a
+kernel-routed link the worker sends them from its own socket of the port), an
+arrival-to-publish latency histogram, and their :class:`ServiceSummary` at the end,
+merged here.
 
 Outputs, as seen by the user:
 
@@ -50,6 +58,7 @@ import multiprocessing
 import multiprocessing.connection
 import os
 import select
+import socket
 import threading
 import time
 from collections import Counter
@@ -61,7 +70,8 @@ from glmav_observer.app import stop_on_signals
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.latency import LatencyHistogram
-from glmav_observer.fleet.routing import StreamSplitter, sysid_of
+from glmav_observer.fleet.reuseport import ReuseportUnavailableError, bind_group, is_kernel_routable
+from glmav_observer.fleet.routing import StreamSplitter, datagram_sysid, worker_of_sysid
 from glmav_observer.fleet.worker_process import (
     WorkerError,
     WorkerResult,
@@ -70,7 +80,7 @@ from glmav_observer.fleet.worker_process import (
     worker_main,
     worker_rerun_mode,
 )
-from glmav_observer.ingest.links import Link
+from glmav_observer.ingest.links import DEFAULT_UDP_RECEIVE_BUFFER_BYTES, Link
 
 logger = logging.getLogger(__name__)
 
@@ -90,9 +100,13 @@ class ShardedSummary:
     routed: dict[int, int] = field(default_factory=dict)  # items per worker
     worker_cpu_s: dict[int, float] = field(default_factory=dict)
     vehicles_per_worker: dict[int, list[int]] = field(default_factory=dict)
+    #: the links the kernel routed to the workers' own sockets
+    kernel_routed: list[str] = field(default_factory=list)
 
     def to_text(self) -> str:
         lines = [self.summary.to_text()]
+        for conn in self.kernel_routed:
+            lines.append(f"link {conn}: routed by the kernel to the workers (SO_REUSEPORT)")
         for w, sysids in sorted(self.vehicles_per_worker.items()):
             lines.append(
                 f"worker {w}: {len(sysids)} vehicles {sysids}, {self.routed.get(w, 0)} items, "
@@ -142,28 +156,65 @@ class _Worker:
 
 
 class ShardedServer:
-    """The parent of ``serve --workers N``: starts workers, routes, merges their results."""
+    """The parent of ``serve --workers N``: starts workers, routes, merges their results.
 
-    def __init__(self, specs: Sequence[WorkerSpec], *, start_timeout_s: float = 60.0) -> None:
+    ``udp_links``: ``udpin:`` connection strings the kernel routes to the workers
+    (:mod:`glmav_observer.fleet.reuseport`; bound here, before the workers start: a taken
+    port raises :class:`LinkError`); those it cannot route are left in
+    :attr:`router_links` for the caller to open and pass to :meth:`run`."""
+
+    def __init__(
+        self,
+        specs: Sequence[WorkerSpec],
+        *,
+        udp_links: Sequence[str] = (),
+        udp_receive_buffer_bytes: int = DEFAULT_UDP_RECEIVE_BUFFER_BYTES,
+        start_timeout_s: float = 60.0,
+    ) -> None:
         ctx = multiprocessing.get_context("spawn")  # no inherited sessions or threads
         self.workers: list[_Worker] = []
         self.owner: dict[int, int] = {}
         self.counters: Counter[str] = Counter()
         self.out = specs[0].out if specs else None
+        #: links the kernel routes to the workers' own sockets
+        self.kernel_routed: list[str] = []
+        #: UDP links the kernel could not route: the caller opens them for :meth:`run`
+        self.router_links: list[str] = []
+        groups: dict[str, list[socket.socket]] = {}
         try:
-            for spec in specs:
+            for conn in udp_links:
+                try:
+                    groups[conn] = bind_group(conn, len(specs), udp_receive_buffer_bytes)
+                except ReuseportUnavailableError as err:
+                    logger.warning(
+                        "UDP link read by the router: the kernel cannot route it",
+                        extra={"link": conn, "error": str(err)},
+                    )
+                    self.router_links.append(conn)
+            self.kernel_routed = list(groups)
+            for i, spec in enumerate(specs):
                 inbox_r, inbox_w = ctx.Pipe(duplex=False)
                 res_r, res_w = ctx.Pipe(duplex=False)
                 proc = ctx.Process(
                     target=worker_main,
-                    args=(spec, inbox_r, res_w),
+                    args=(
+                        dataclasses.replace(spec, workers=len(specs)),
+                        inbox_r,
+                        res_w,
+                        {conn: socks[i] for conn, socks in groups.items()},
+                    ),
                     name=f"glmav-worker-{spec.index}",
                     daemon=True,
                 )
-                proc.start()
+                proc.start()  # the worker's sockets are passed to it here
                 inbox_r.close()
                 res_w.close()
                 self.workers.append(_Worker(spec.index, proc, inbox_w, res_r))
+            # the workers hold their sockets: a worker that dies leaves the group
+            for socks in groups.values():
+                for sk in socks:
+                    sk.close()
+            groups.clear()
             deadline = time.monotonic() + start_timeout_s
             for i, w in enumerate(self.workers):
                 if i == 1:
@@ -179,17 +230,20 @@ class ShardedServer:
                 if kind == "error":
                     raise WorkerError(str(payload))
         except BaseException:
+            for socks in groups.values():
+                for sk in socks:
+                    sk.close()
             self._stop_workers(timeout_s=10.0)
             raise
 
     # -- routing -----------------------------------------------------------------------
     def worker_of(self, sysid: int | None) -> _Worker:
-        """The worker owning ``sysid`` (assigned to the least loaded one on first sight)."""
+        """The worker owning ``sysid`` (:func:`worker_of_sysid`, the kernel's rule too)."""
         if sysid is None:
             return self.workers[0]
         w = self.owner.get(sysid)
         if w is None:
-            w = min(self.workers, key=lambda x: (len(x.vehicles), x.index)).index
+            w = worker_of_sysid(sysid, len(self.workers))
             self.owner[sysid] = w
             self.workers[w].vehicles.append(sysid)
             logger.info("vehicle routed", extra={"sysid": sysid, "worker": w})
@@ -212,11 +266,7 @@ class ShardedServer:
         w.batch = []
 
     def route_datagram(self, link_id: str, data: bytes, t_arrival_s: float, peer: Any) -> None:
-        sysid = sysid_of(data)
-        if sysid is None:  # garbage before the first frame: find the first header
-            q = min((x for x in (data.find(b"\xfd"), data.find(b"\xfe")) if x >= 0), default=-1)
-            sysid = sysid_of(data, q) if q >= 0 else None
-        self._queue(self.worker_of(sysid), (link_id, t_arrival_s, data, peer))
+        self._queue(self.worker_of(datagram_sysid(data)), (link_id, t_arrival_s, data, peer))
 
     # -- the loop ----------------------------------------------------------------------
     def run(
@@ -282,6 +332,9 @@ class ShardedServer:
             for lid, frame, peer in payload:
                 if lid in links:
                     links[lid].write(frame, peer)
+        elif kind == "route":  # read by a worker, owned by another (see worker_process)
+            for lid, t_arrival_s, data, peer in payload:
+                self.route_datagram(lid, data, t_arrival_s, peer)
         elif kind == "result":
             w.result = payload
 
@@ -326,8 +379,15 @@ class ShardedServer:
         return ShardedSummary(
             summary=merge_summaries([r.summary for r in results], self.counters),
             latency=latency,
-            routed={w.index: w.routed for w in self.workers},
-            vehicles_per_worker={w.index: sorted(w.vehicles) for w in self.workers},
+            # datagrams each worker estimated: routed here, or read from its own socket
+            routed={r.index: r.items for r in results},
+            vehicles_per_worker={
+                w.index: sorted(
+                    set(w.vehicles) | set(w.result.summary.vehicles if w.result else ())
+                )
+                for w in self.workers
+            },
+            kernel_routed=list(self.kernel_routed),
             worker_cpu_s={r.index: r.cpu_s for r in results},
         )
 
@@ -379,6 +439,7 @@ def worker_specs(
             rerun_mode=mode,
             claim=claim,
             log_level=level if isinstance(level, str) else "INFO",
+            workers=workers,
         )
         for i in range(workers)
     ]
@@ -393,11 +454,20 @@ def serve_sharded(
     stop = stop_event if stop_event is not None else threading.Event()
     opened: dict[str, Link] = {}
     server: ShardedServer | None = None
+    links = list(links)
     with stop_on_signals(stop):
         try:
-            server = ShardedServer(specs)
             config = specs[0].config
+            server = ShardedServer(
+                specs,
+                udp_links=[c for c in links if is_kernel_routable(c)],
+                udp_receive_buffer_bytes=config.udp_receive_buffer_bytes,
+            )
+            for conn in server.kernel_routed:
+                logger.info("link open, routed by the kernel", extra={"link": conn})
             for conn in links:
+                if conn in server.kernel_routed:
+                    continue
                 opened[conn] = Link(conn, udp_receive_buffer_bytes=config.udp_receive_buffer_bytes)
                 logger.info("link open", extra={"link": conn, "workers": len(specs)})
             server.run(opened, stop)

@@ -68,8 +68,12 @@ def check_connection_string(conn: str) -> tuple[str, str, int] | None:
     return kind, host, port
 
 
-def _bind_exclusive_udp(conn: str, host: str, port: int, rcvbuf: int) -> socket.socket:
-    """A UDP socket bound to host:port that no other process can share (see the module)."""
+def bind_udp(
+    conn: str, host: str, port: int, rcvbuf: int, *, reuseport: bool = False
+) -> socket.socket:
+    """A non-blocking UDP socket bound to host:port that no other process can share (see
+    the module); with ``reuseport``, one of a ``SO_REUSEPORT`` group (the workers' sockets
+    of :mod:`glmav_observer.fleet.reuseport`, which binds it exclusively first)."""
     try:
         infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
     except OSError as err:
@@ -77,6 +81,8 @@ def _bind_exclusive_udp(conn: str, host: str, port: int, rcvbuf: int) -> socket.
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
+        if reuseport:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
         sock.bind(infos[0][4])
     except OSError as err:
         sock.close()
@@ -103,8 +109,14 @@ class Link:
     """One open link: ``read()`` returns the bytes available (one datagram for UDP)."""
 
     def __init__(
-        self, conn: str, *, udp_receive_buffer_bytes: int = DEFAULT_UDP_RECEIVE_BUFFER_BYTES
+        self,
+        conn: str,
+        *,
+        udp_receive_buffer_bytes: int = DEFAULT_UDP_RECEIVE_BUFFER_BYTES,
+        sock: socket.socket | None = None,
     ) -> None:
+        """Open ``conn``; with ``sock``, a ``udpin:`` link on that socket, already bound
+        (a worker's socket of a reuseport group: :mod:`glmav_observer.fleet.reuseport`)."""
         self.conn = conn
         self.datagram = conn.startswith(("udpin:", "udpout:", "udp:", "udpbcast:"))
         if conn.endswith(".tlog"):
@@ -113,10 +125,13 @@ class Link:
         #: the sender of the last datagram read (UDP), to answer that vehicle
         self.peer: Any = None
         self._m: Any = None
-        if parsed is not None and parsed[0] in ("udpin", "udp"):
-            self._sock: socket.socket | None = _bind_exclusive_udp(
-                conn, parsed[1], parsed[2], udp_receive_buffer_bytes
-            )
+        if sock is not None:
+            if parsed is None or parsed[0] not in ("udpin", "udp"):
+                raise LinkError(f"{conn}: only a udpin:HOST:PORT link is opened on a socket")
+            self._sock: socket.socket | None = sock
+            sock.setblocking(False)
+        elif parsed is not None and parsed[0] in ("udpin", "udp"):
+            self._sock = bind_udp(conn, parsed[1], parsed[2], udp_receive_buffer_bytes)
         else:
             self._sock = self._open_mavutil(conn, serial=parsed is None)
             if self._sock is not None:

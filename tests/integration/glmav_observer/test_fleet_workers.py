@@ -1,5 +1,5 @@
 """``serve --workers 2`` against the fleet generator on loopback: vehicles are split by
-system id, each stays on one worker, the merged file holds exactly what one process
+system id (a UDP port by the kernel), each stays on one worker, the merged file holds exactly what one process
 estimates from the same frames, and a TCP stream is cut into frames without loss."""
 
 from __future__ import annotations
@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 import signal
+import socket
 import subprocess
 from collections import defaultdict
 from collections.abc import Callable
@@ -15,6 +16,7 @@ from typing import Any
 
 import pytest
 
+from glmav_observer.fleet.routing import worker_of_sysid
 from glmav_testkit.fleet_helpers import (
     OBS,
     SITL,
@@ -69,7 +71,8 @@ def test_two_workers_estimate_what_one_process_estimates(
 ) -> None:
     tlog = record_tlog(tmp_path, 3.0)
     out2, out1 = tmp_path / "w2.jsonl", tmp_path / "w1.jsonl"
-    stdout2, sent2, drops2 = _serve_udp(tlog, free_udp_port(), out2, 2)
+    port2 = free_udp_port()
+    stdout2, sent2, drops2 = _serve_udp(tlog, port2, out2, 2)
     stdout1, sent1, drops1 = _serve_udp(tlog, free_udp_port(), out1, 1)
     assert sent1 == sent2 > 0
     # everything sent was decoded (loopback; 4 x 430 = 1.7k datagrams/s: the single process
@@ -77,9 +80,13 @@ def test_two_workers_estimate_what_one_process_estimates(
     assert (drops1, drops2) == (0, 0)
     for stdout in (stdout1, stdout2):
         assert f"frames_ok={sent1}" in stdout
-    # the least-loaded worker takes each new vehicle: 2 and 2
-    loads = re.findall(r"worker (\d): (\d+) vehicles", stdout2)
-    assert sorted(loads) == [("0", "2"), ("1", "2")]
+    # the port is routed by the kernel, each vehicle to its worker by the rule on its id
+    # (ids 1-4 on 2 workers: 2 and 2)
+    assert f"link udpin:127.0.0.1:{port2}: routed by the kernel" in stdout2
+    loads = re.findall(r"worker (\d): (\d+) vehicles \[([\d, ]+)\]", stdout2)
+    want = {w: [s for s in range(1, VEHICLES + 1) if worker_of_sysid(s, 2) == w] for w in (0, 1)}
+    assert loads == [(str(w), str(len(v)), ", ".join(map(str, v))) for w, v in want.items()]
+    assert [len(v) for v in want.values()] == [2, 2]
     rows2, rows1 = _velocity_rows(out2), _velocity_rows(out1)
     assert sorted(rows2) == list(range(1, VEHICLES + 1))
     for sysid in rows1:
@@ -143,3 +150,68 @@ def test_bad_worker_options_exit_2_with_the_reason(
     assert r.returncode == 2
     assert message in r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.timeout(180)
+def test_a_datagram_the_kernel_sends_to_the_wrong_worker_reaches_its_owner(
+    tmp_path: Path, free_udp_port: Callable[[], int]
+) -> None:
+    """The kernel's program reads the header at byte 0: a datagram with bytes before its
+    header goes to worker 0, which hands it to the vehicle's worker through the parent."""
+    import threading
+    import time
+
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    from glmav_observer.config import ServiceConfig
+    from glmav_observer.fleet.routing import worker_of_sysid
+    from glmav_observer.fleet.workers import ShardedServer, worker_specs
+    from glmav_observer.ingest.framing import FrameCounters, iter_tlog
+
+    tlog = record_tlog(tmp_path, 1.5)
+    messages = [r.msg for r in iter_tlog(tlog.read_bytes(), FrameCounters())]
+    sysids = (1, 2, 3, 4)
+    owner = {s: worker_of_sysid(s, 2) for s in sysids}
+    assert sorted(owner.values()) == [0, 0, 1, 1]
+    encoders = {s: mav2.MAVLink(None, srcSystem=s, srcComponent=1) for s in sysids}
+    datagrams: list[bytes] = []
+    prefixed = {0: 0, 1: 0}
+    for i, msg in enumerate(messages):
+        for s in sysids:
+            d = bytes(msg.pack(encoders[s]))
+            if i % 10 == 3:  # every 10th frame of each vehicle after two stray bytes
+                d = b"\x00\x00" + d
+                prefixed[owner[s]] += 1
+            datagrams.append(d)
+    port = free_udp_port()
+    conn = f"udpin:127.0.0.1:{port}"
+    cfg = ServiceConfig(request_rates=False)
+    server = ShardedServer(worker_specs(cfg, 2), udp_links=[conn])
+    assert server.kernel_routed == [conn]
+    stop = threading.Event()
+    th = threading.Thread(target=server.run, args=({}, stop), daemon=True)
+    th.start()
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for k, d in enumerate(datagrams):
+                tx.sendto(d, ("127.0.0.1", port))
+                if k % 50 == 49:
+                    time.sleep(0.002)  # ~25k datagrams/s: well within the receive buffer
+        drops = wait_drained(port)
+        time.sleep(0.5)  # the forwarded ones go through the parent's batch (≤ 1 ms)
+    finally:
+        stop.set()
+        th.join(30.0)
+        result = server.close()
+    assert drops == 0
+    s = result.summary
+    # every frame decoded exactly once: the stray bytes counted as garbage, 2 a datagram
+    assert s.messages == len(datagrams)
+    n_prefixed = prefixed[0] + prefixed[1]
+    assert s.link_counters[conn]["garbage_bytes"] == 2 * n_prefixed
+    # those of worker 1's vehicles were read by worker 0 and handed over; worker 0's own
+    # stayed with it
+    assert s.service_counters["datagrams_rerouted"] == prefixed[1] > 0
+    # each vehicle on its owner only: had worker 0 estimated a stray one, it would be there too
+    for w, vehicles in result.vehicles_per_worker.items():
+        assert vehicles == [v for v in sysids if owner[v] == w]

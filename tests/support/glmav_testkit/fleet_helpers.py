@@ -75,14 +75,17 @@ def wait_listening_tcp(port: int, proc: subprocess.Popen[str], timeout_s: float 
 
 
 def udp_queue(port: int) -> tuple[int, int]:
-    """(bytes waiting in the receive queue, datagrams dropped) of UDP 127.0.0.1:``port``."""
+    """(bytes waiting in the receive queues, datagrams dropped) of UDP 127.0.0.1:``port``,
+    summed over its sockets (``serve --workers N``: one per worker, a reuseport group)."""
     want = f"0100007F:{port:04X}"
+    queued = dropped = 0
     with open("/proc/net/udp", encoding="ascii") as f:
         for line in f.readlines()[1:]:
             cols = line.split()
             if cols[1] == want:
-                return int(cols[4].split(":")[1], 16), int(cols[-1])
-    return 0, 0
+                queued += int(cols[4].split(":")[1], 16)
+                dropped += int(cols[-1])
+    return queued, dropped
 
 
 def wait_drained(port: int, timeout_s: float = 120.0) -> int:
