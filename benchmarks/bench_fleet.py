@@ -11,7 +11,10 @@ records are counted: the estimate, not a consumer, is measured):
 - ``N workers``: ``serve --workers N`` (N = cores): N worker processes estimating, each
   reading its own socket of the port (the kernel routes by system id:
   :mod:`glmav_observer.fleet.reuseport`; where it cannot, the parent reads the port here
-  and passes the datagrams through pipes, and the row's ``routing`` says ``router``).
+  and passes the datagrams through pipes, and the row's ``routing`` says ``router``);
+- ``N workers, router``: the same with the parent reading the port and passing the
+  datagrams through pipes (serve's fallback, and what it did before the kernel routed):
+  the baseline of the kernel's routing in the same run, 10 to 100 vehicles.
 
 Per point: datagrams the generator sent, decoded by the service, dropped (sent minus
 decoded: the kernel's receive buffer overflowed because the service fell behind);
@@ -19,7 +22,7 @@ arrival-to-publish latency per datagram (from the read of the socket to the reco
 handed to the sinks; through the router, across processes on the shared monotonic clock),
 p50 and p99; the generator's own CPU (fraction of one core). A mode's curve stops after
 the first point with more than 10 % dropped for one worker (it is saturated; more
-vehicles only drop more); the N-worker curve always runs to 100 vehicles (the goal). The machine is shared: the load average is recorded with every point.
+vehicles only drop more); the N-worker curves always run to 100 vehicles (the goal; saturation for the throughput). The machine is shared: the load average is recorded with every point.
 
     python -m benchmarks.bench_fleet            # 10 s per point, 2 to 100 vehicles
     python -m benchmarks.bench_fleet --quick    # 5 s per point, 5 / 25 / 100 vehicles
@@ -51,6 +54,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SITL = str(Path(sys.executable).with_name("glmav-sitl"))
 VEHICLES = (2, 5, 10, 25, 35, 50, 100)
 VEHICLES_QUICK = (5, 25, 100)
+VEHICLES_ROUTER = (10, 25, 35, 50, 100)
+VEHICLES_ROUTER_QUICK = (25, 100)
 SATURATED_DROP_PCT = 10.0
 GOAL_VEHICLES = 100
 
@@ -126,18 +131,22 @@ def _point_single(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
     return row
 
 
-def _point_sharded(tlog: Path, n: int, seconds: float, workers: int) -> dict[str, Any]:
+def _point_sharded(
+    tlog: Path, n: int, seconds: float, workers: int, *, kernel: bool = True
+) -> dict[str, Any]:
+    """``serve --workers N``; ``kernel=False``: the parent reads the port and routes
+    through pipes (what serve does where the OS cannot route by program), the baseline."""
     port = _free_udp_port()
     cfg = _config(n)
     conn = f"udpin:127.0.0.1:{port}"
     server = ShardedServer(
         worker_specs(cfg, workers),
-        udp_links=[conn],
+        udp_links=[conn] if kernel else [],
         udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
     )
     # as serve does: the kernel routes the port to the workers' sockets where it can
     links = {}
-    if server.router_links:
+    if server.router_links or not kernel:
         links[conn] = Link(conn, udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
     stop = threading.Event()
     th = threading.Thread(target=server.run, args=(links, stop), daemon=True)
@@ -154,7 +163,8 @@ def _point_sharded(tlog: Path, n: int, seconds: float, workers: int) -> dict[str
         result = server.close()
     s = result.summary
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
-    row = _row(f"{workers} workers", n, gen, frames_ok, drops, result.latency, len(s.vehicles))
+    mode = f"{workers} workers" if kernel else f"{workers} workers, router"
+    row = _row(mode, n, gen, frames_ok, drops, result.latency, len(s.vehicles))
     row["routing"] = "kernel" if server.kernel_routed else "router"
     row["worker_cpu_s"] = sum(result.worker_cpu_s.values())
     row["worker_us_per_datagram"] = 1e6 * row["worker_cpu_s"] / max(1, frames_ok)
@@ -195,18 +205,20 @@ def run(quick: bool = False) -> dict[str, Any]:
 
     seconds = 5.0 if quick else 10.0
     counts = VEHICLES_QUICK if quick else VEHICLES
+    # the baseline of the kernel's routing: the parent reading the port, in the same run
+    router_counts = VEHICLES_ROUTER_QUICK if quick else VEHICLES_ROUTER
     workers = max(2, len(os.sched_getaffinity(0)))
     load_before = os.getloadavg()
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="glmav-bench-fleet-") as tmp:
         tlog = record_tlog(Path(tmp) / "design.tlog", seconds + 2.0, truth=False)
-        for mode in ("single", "sharded"):
-            for n in counts:
+        for mode in ("single", "sharded", "router"):
+            for n in counts if mode != "router" else router_counts:
                 t0 = time.monotonic()
                 if mode == "single":
                     row = _point_single(tlog, n, seconds)
                 else:
-                    row = _point_sharded(tlog, n, seconds, workers)
+                    row = _point_sharded(tlog, n, seconds, workers, kernel=mode == "sharded")
                 row["sent_per_s"] = row["sent"] / seconds
                 row["wall_s"] = time.monotonic() - t0
                 rows.append(row)
@@ -248,6 +260,16 @@ def run(quick: bool = False) -> dict[str, Any]:
             higher_is_better=False,
         ),
     ]
+    router = f"{workers} workers, router"
+    if router in throughput and sharded in throughput:
+        goals.append(
+            goal(
+                f"{sharded}: kernel routing / router, most datagrams decoded per second",
+                throughput[sharded] / throughput[router],
+                1.0,  # the kernel's routing takes work off the cores: never less
+                higher_is_better=True,
+            )
+        )
     if at_goal:
         goals.append(
             goal(
@@ -304,6 +326,8 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"({r['datagrams_per_vehicle_s']} datagrams/s per vehicle: `nominal_per_s`) to one UDP "
         "port; `sent_per_s` is what the generator achieved (about 5 % below nominal from the "
         "staggered starts; further below, the generator itself ran late). "
+        "`N workers, router`: the parent reads the port and routes through pipes (the "
+        "baseline of the kernel's routing, same run). "
         "`dropped_pct`: datagrams sent but never decoded (kernel receive-buffer overflow). "
         "Latency: socket read to records handed to the sinks, per datagram; it does not "
         "include the time a datagram waited in the kernel's receive buffer (a backlog there "

@@ -21,7 +21,8 @@ stage by stage with the modules' own APIs (no stage is patched out):
 
 CPU time (``process_time``) per datagram of the whole log, median of repeats, one core.
 The budget: 100 vehicles x 381 datagrams/s on 2 cores leave 2 s / 38,100 = 52.5 µs of CPU
-per datagram for everything, the generator, the receiving parent and the workers.
+per datagram for everything, the generator and the workers (which read their own sockets
+of the port: the kernel routes it, glmav_observer.fleet.reuseport).
 """
 
 from __future__ import annotations
@@ -200,8 +201,9 @@ def to_markdown(result: dict[str, Any]) -> str:
             # the JSON's keys come back sorted: the columns in their own order
             format_table([{k: r[k] for k in COLUMNS} for r in result["rows"]]),
             "The budget: 100 vehicles × 381 datagrams/s on 2 cores leave "
-            f"{result['budget_us']:.1f} µs of CPU per datagram for the generator, the "
-            "receiving parent and the workers together. `estimate` runs the bank at every "
+            f"{result['budget_us']:.1f} µs of CPU per datagram for the generator and the "
+            "workers together (the workers read their own sockets of the port, and a live "
+            "worker pays the reads too: see bench_fleet). `estimate` runs the bank at every "
             "sample and builds the records of every configuration at every IMU sample (250 "
             "of the 381 datagrams/s); trimming it will not close the gap, vectorising the "
             "bank and the records across vehicles or compiling them would have to.",
