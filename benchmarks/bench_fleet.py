@@ -18,8 +18,9 @@ records are counted: the estimate, not a consumer, is measured):
 
 Per point: datagrams the generator sent, decoded by the service, dropped (sent minus
 decoded: the kernel's receive buffer overflowed because the service fell behind);
-arrival-to-publish latency per datagram (from the read of the socket to the records
-handed to the sinks; through the router, across processes on the shared monotonic clock),
+arrival-to-publish latency per datagram (from the kernel's receive stamp of the datagram,
+``SO_TIMESTAMPNS``, to the records handed to the sinks: the wait in the socket's queue
+counts; through the router, across processes on the shared monotonic clock),
 p50 and p99; the generator's own CPU (fraction of one core). A mode's curve stops after
 the first point with more than 10 % dropped for one worker (it is saturated; more
 vehicles only drop more); the N-worker curves always run to 100 vehicles (the goal; saturation for the throughput). The machine is shared: the load average is recorded with every point.
@@ -105,7 +106,7 @@ def _point_single(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
 
     def feed_bytes(link_id: str, data: bytes, t: float, *, datagram: bool = True) -> int:
         k = orig(link_id, data, t, datagram=datagram)
-        hist.add(clock() - t)
+        hist.add(clock() - link.arrival_s)  # from the kernel's receive stamp
         return k
 
     svc.feed_bytes = feed_bytes  # type: ignore[method-assign]
@@ -329,12 +330,13 @@ def to_markdown(result: dict[str, Any]) -> str:
         "`N workers, router`: the parent reads the port and routes through pipes (the "
         "baseline of the kernel's routing, same run). "
         "`dropped_pct`: datagrams sent but never decoded (kernel receive-buffer overflow). "
-        "Latency: socket read to records handed to the sinks, per datagram; it does not "
-        "include the time a datagram waited in the kernel's receive buffer (a backlog there "
-        "shows as drops). `routing`: `kernel` when each worker reads its own socket of the "
-        "port (SO_REUSEPORT with the routing program: the same measure as 1 worker), "
-        "`router` when the parent reads it and passes datagrams through pipes (then the "
-        "latency includes the wait in the pipes). The 1-worker "
+        "Latency: from the kernel's receive stamp of each datagram decoded (SO_TIMESTAMPNS) "
+        "to its records handed to the sinks: the wait in the socket's receive queue counts "
+        "(a saturated service keeps the queue full: its latency is the queue's length, and "
+        "what overflows is dropped). `routing`: `kernel` when each worker reads its own "
+        "socket of the port (SO_REUSEPORT with the routing program), `router` when the "
+        "parent reads it and passes datagrams through pipes (the wait in the pipes counts "
+        "too). The 1-worker "
         f"curve stops after its first point above {SATURATED_DROP_PCT:.0f} % dropped. "
         "`worker_us_per_datagram`: the workers' CPU time per datagram decoded.",
         "",

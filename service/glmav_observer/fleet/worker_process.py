@@ -212,7 +212,8 @@ class _WorkerLoop:
                 continue
             service.current_peer = lk.peer
             service.feed_bytes(lid, data, t, datagram=True)
-            self.latency.add(clock() - t)
+            # from the kernel's receive stamp: the wait in the socket's queue counts
+            self.latency.add(clock() - lk.arrival_s)
             self.items += 1
         if foreign:
             if at_stop:  # the parent no longer routes: counted, not lost silently

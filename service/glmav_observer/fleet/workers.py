@@ -308,7 +308,8 @@ class ShardedServer:
                         break
                     t = clock()
                     if lk.datagram:
-                        self.route_datagram(lid, data, t, lk.peer)
+                        # its arrival: the kernel's stamp (the wait in the queue counts)
+                        self.route_datagram(lid, data, min(t, lk.arrival_s), lk.peer)
                         continue
                     sp = splitters.get(lid)
                     if sp is None:

@@ -22,12 +22,18 @@ import errno
 import importlib.util
 import logging
 import socket
+import struct
 import time
 from typing import Any
 
 logger = logging.getLogger(__name__)
 
 _UDP_MAX = 65535
+#: the kernel's receive time stamp of each datagram (linux/asm-generic/socket.h: 35)
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+#: struct timespec of the stamp: seconds and nanoseconds (CLOCK_REALTIME)
+_TIMESPEC = struct.Struct("@qq")
+_ANCILLARY_BYTES = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
 #: TCP client links: reconnect delay after a disconnect, doubling up to the maximum (s).
 RECONNECT_FIRST_S = 0.1
 RECONNECT_MAX_S = 5.0
@@ -101,6 +107,29 @@ def bind_udp(
     return sock
 
 
+def _enable_stamps(sock: socket.socket) -> bool:
+    """Ask for the kernel's receive stamps on ``sock``; False where the OS has none."""
+    if not _ANCILLARY_BYTES or not hasattr(sock, "recvmsg"):
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def _arrival_s(ancillary: list[tuple[int, int, bytes]]) -> float:
+    """The kernel's receive stamp of a datagram on ``time.monotonic``'s clock (now when
+    there is none): the stamp is CLOCK_REALTIME, moved by the two clocks' offset now."""
+    now = time.monotonic()
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            t: float = sec + nsec * 1e-9 - (time.time() - now)
+            return min(t, now)  # a clock step between the two reads must not make it later
+    return now
+
+
 #: SO_RCVBUF asked for on UDP links (the OS may cap it: net.core.rmem_max).
 DEFAULT_UDP_RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
 
@@ -124,14 +153,21 @@ class Link:
         parsed = check_connection_string(conn)
         #: the sender of the last datagram read (UDP), to answer that vehicle
         self.peer: Any = None
+        #: when the last datagram read arrived, on ``time.monotonic``'s clock: the kernel's
+        #: receive stamp on a ``udpin:`` socket (it includes the wait in the receive queue,
+        #: which a backlog makes long), else the time it was read
+        self.arrival_s = 0.0
+        self._stamps = False
         self._m: Any = None
         if sock is not None:
             if parsed is None or parsed[0] not in ("udpin", "udp"):
                 raise LinkError(f"{conn}: only a udpin:HOST:PORT link is opened on a socket")
             self._sock: socket.socket | None = sock
             sock.setblocking(False)
+            self._stamps = _enable_stamps(sock)
         elif parsed is not None and parsed[0] in ("udpin", "udp"):
             self._sock = bind_udp(conn, parsed[1], parsed[2], udp_receive_buffer_bytes)
+            self._stamps = _enable_stamps(self._sock)
         else:
             self._sock = self._open_mavutil(conn, serial=parsed is None)
             if self._sock is not None:
@@ -225,13 +261,20 @@ class Link:
             return b""
         if self._sock is not None:
             try:
+                if self._stamps:
+                    data, anc, _flags, addr = self._sock.recvmsg(_UDP_MAX, _ANCILLARY_BYTES)
+                    self.peer = addr
+                    self.arrival_s = _arrival_s(anc)
+                    return data
                 if self.datagram:
                     data, addr = self._sock.recvfrom(_UDP_MAX)
+                    self.arrival_s = time.monotonic()
                     self.peer = addr
                     if self._m is not None and getattr(self._m, "udp_server", False):
                         self._m.last_address = addr  # replies go to the sender
                     return data
                 data = self._sock.recv(_UDP_MAX)
+                self.arrival_s = time.monotonic()
                 if not data and self.reconnects:
                     return self._disconnected("eof")
                 return data
@@ -246,6 +289,7 @@ class Link:
                     return self._disconnected(str(err))
                 raise
         data = self._m.recv(_UDP_MAX)
+        self.arrival_s = time.monotonic()
         return bytes(data) if data else b""
 
     def write(self, data: bytes, peer: Any = None) -> None:

@@ -188,3 +188,27 @@ def test_the_simulator_sends_from_its_links_own_address(free_udp_port: Callable[
             assert got == [b"gcs"]
         finally:
             lk.close()
+
+
+def test_a_datagrams_arrival_is_the_kernels_stamp_not_its_read(
+    free_udp_port: Callable[[], int],
+) -> None:
+    """A datagram that waits in the queue arrived when the kernel took it: the latency
+    the workers report counts that wait (a saturated service's backlog)."""
+    port = free_udp_port()
+    link = Link(f"udpin:127.0.0.1:{port}")
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            t0 = time.monotonic()
+            tx.sendto(b"\xfd\x09", ("127.0.0.1", port))  # loopback: queued in the call
+            t1 = time.monotonic()
+        time.sleep(0.05)
+        t_read = time.monotonic()
+        assert link.read() == b"\xfd\x09"
+        # the stamp is taken inside sendto; it is CLOCK_REALTIME moved onto the monotonic
+        # clock by their offset at the read: a slew of ≤ 500 ppm over 50 ms moves it 25 µs,
+        # the stamp's float ~0.3 µs; 1 ms covers both with room
+        assert t0 - 1e-3 <= link.arrival_s <= t1 + 1e-3
+        assert t_read - link.arrival_s >= 0.045  # the 50 ms in the queue, not ~0
+    finally:
+        link.close()
