@@ -324,8 +324,8 @@ class _Vehicle:
         self.chunk_from = self.chunk_to = 0
 
     def rewritten(self, a: int, b: int) -> list[bytes]:
-        """Frames ``a`` to ``b`` (exclusive; ``a`` in or right after the chunk, ``b`` at
-        most a chunk past ``a``... or any span: refilled as needed) for this vehicle."""
+        """Frames ``a`` to ``b`` (exclusive) rewritten for this vehicle, from the chunk
+        held (the next ``REWRITE_CHUNK`` frames are rewritten when ``a`` leaves it)."""
         out: list[bytes] = []
         while a < b:
             if not self.chunk_from <= a < self.chunk_to:

@@ -151,7 +151,6 @@ class _Worker:
     batch: list[tuple[str, float, bytes, Any]] = field(default_factory=list)
     #: arrival time (the loop's clock) of the newest item of the last batch sent
     flushed_s: float = -math.inf
-    routed: int = 0
     result: WorkerResult | None = None
 
 
@@ -261,7 +260,6 @@ class ShardedServer:
             w.inbox.send(w.batch)
         except (BrokenPipeError, OSError):
             self.counters["items_lost_worker_gone"] += len(w.batch)
-        w.routed += len(w.batch)
         w.flushed_s = w.batch[-1][1]
         w.batch = []
 
