@@ -302,8 +302,8 @@ class FleetSummary:
 
 class _Vehicle:
     __slots__ = (
-        "arrays", "chunk", "chunk_from", "chunk_to", "frames", "idx", "links", "log",
-        "offset_s", "sends", "sysid", "times",
+        "arrays", "batch", "chunk", "chunk_from", "chunk_to", "frames", "idx", "links",
+        "log", "offset_s", "sends", "sysid", "times",
     )  # fmt: skip
 
     def __init__(
@@ -322,6 +322,21 @@ class _Vehicle:
         #: frames chunk_from .. chunk_to - 1, rewritten for this vehicle
         self.chunk: list[bytes] = []
         self.chunk_from = self.chunk_to = 0
+        #: the frames gathered for the stream links (shared by every vehicle), if any
+        self.batch: list[bytes] | None = None
+
+    def emit(self, data: bytes) -> None:
+        """Send one frame on every link of this vehicle (failures counted by the link)."""
+        for send, ulk in self.sends:
+            try:
+                send(data)
+                ulk.sent_packets += 1
+            except OSError as err:
+                ulk._failed(err)
+        for lk in self.links:
+            lk.write(data)
+        if self.batch is not None:
+            self.batch.append(data)
 
     def rewritten(self, a: int, b: int) -> list[bytes]:
         """Frames ``a`` to ``b`` (exclusive) rewritten for this vehicle, from the chunk
@@ -430,9 +445,27 @@ def _send(
     end_wall = float("inf") if duration_s is None else duration_s
     sent = 0
     late_max = 0.0
-    batch: list[bytes] = []
+    batch: list[bytes] = []  # the frames gathered for the stream links
+
+    def flush() -> None:
+        if batch:
+            out = b"".join(batch)
+            batch.clear()
+            for lk in shared:
+                lk.write(out)
+
     live = [v for v in fleet if v.frames]
-    fast = not shared and all(len(v.sends) == 1 and not v.links for v in live)
+    for v in live:
+        v.batch = batch if shared else None
+    # every vehicle on one connected UDP socket (the common case): a frame is one call of
+    # the socket's send, its failure counted on the link here
+    direct = not shared and all(len(v.sends) == 1 and not v.links for v in live)
+
+    def failed(k: int, err: OSError) -> None:
+        ulk = live[k].sends[0][1]
+        ulk._failed(err)
+        ulk.sent_packets -= 1
+
     t_window = 0.0
     while live and not stop.is_set() and t_window < end_wall:
         w_end = min(t_window + WINDOW_S, end_wall)
@@ -450,42 +483,14 @@ def _send(
         if dues:
             due_all = np.concatenate(dues)
             order = np.argsort(due_all, kind="stable").tolist()
-            due_l = due_all.tolist()
-            now = clock() - wall0
-            if fast:  # every vehicle on one udpout socket: one call per frame
-                n, late = _send_direct(order, due_l, datas, owners, live, stop, clock, wall0)
-                sent += n
-                late_max = max(late_max, late)
-                t_window = w_end
-                live = [v for v in live if v.idx < len(v.frames)]
-                continue
-            for i in order:
-                due = due_l[i]
-                if due > now:
-                    now = clock() - wall0
-                    if due > now:
-                        if batch:
-                            out = b"".join(batch)
-                            batch.clear()
-                            for lk in shared:
-                                lk.write(out)
-                        if due - now > MIN_SLEEP_S and stop.wait(due - now):
-                            break
-                        now = clock() - wall0
-                late_max = max(late_max, now - due)
-                data = datas[i]
-                v = live[owners[i]]
-                for send, ulk in v.sends:
-                    try:
-                        send(data)
-                        ulk.sent_packets += 1
-                    except OSError as err:
-                        ulk._failed(err)
-                for lk in v.links:
-                    lk.write(data)
-                if shared:
-                    batch.append(data)
-                sent += 1
+            emits = [live[o].sends[0][0] if direct else live[o].emit for o in owners]
+            window = _Window(order, due_all.tolist(), datas, emits, owners)
+            n, late = _send_window(window, failed, flush, stop, clock, wall0)
+            if direct:
+                for k, c in Counter(owners[i] for i in order[:n]).items():
+                    live[k].sends[0][1].sent_packets += c
+            sent += n
+            late_max = max(late_max, late)
         t_window = w_end
         live = [v for v in live if v.idx < len(v.frames)]
         if not dues:  # nothing due in this window: wait for its end (or the next frame)
@@ -494,10 +499,7 @@ def _send(
             now = clock() - wall0
             if t_window - now > MIN_SLEEP_S and stop.wait(t_window - now):
                 break
-    if batch:
-        out = b"".join(batch)
-        for lk in shared:
-            lk.write(out)
+    flush()
     wall = time.perf_counter() - wall0
     cpu = time.process_time() - cpu0
     counters: Counter[str] = Counter()
@@ -514,43 +516,50 @@ def _send(
     )
 
 
-def _send_direct(  # noqa: PLR0917 -- the window's schedule, as _send holds it
-    order: list[int],
-    due_l: list[float],
-    datas: list[bytes],
-    owners: list[int],
-    live: list[_Vehicle],
+@dataclass(frozen=True, slots=True)
+class _Window:
+    """One window's frames: their send order, due times (s from the start), bytes, the
+    call that sends each (a socket's send, or its vehicle's :meth:`_Vehicle.emit`) and
+    the index of its vehicle."""
+
+    order: list[int]
+    due_s: list[float]
+    datas: list[bytes]
+    emits: list[Any]
+    owners: list[int]
+
+
+def _send_window(  # noqa: PLR0917 -- the window and the loop's clock, stop and hooks
+    w: _Window,
+    failed: Any,
+    flush: Any,
     stop: threading.Event,
     clock: Any,
     wall0: float,
 ) -> tuple[int, float]:
-    """Send one window's frames, each when due, every vehicle on one connected UDP socket
-    (the common case: the per-frame loop of :func:`_send` without its link cases).
-    Returns the frames sent (a send that fails is counted on its link, as a write) and
-    the most any was late (against the clock read last, as :func:`_send` measures)."""
-    sends = [live[o].sends[0][0] for o in owners]
+    """Send a window's frames, each once its time has come (``flush`` before a sleep);
+    a send that raises is passed to ``failed(vehicle index, error)``. Returns the frames
+    sent and the most any was late (against the clock read last)."""
+    due_l, datas, emits = w.due_s, w.datas, w.emits
     now = clock() - wall0
     n = 0
     late_max = 0.0
-    for i in order:
+    for i in w.order:
         due = due_l[i]
         if due > now:
             now = clock() - wall0
             if due > now:
+                flush()
                 if due - now > MIN_SLEEP_S and stop.wait(due - now):
                     break
                 now = clock() - wall0
         elif now - due > late_max:
             late_max = now - due
         try:
-            sends[i](datas[i])
+            emits[i](datas[i])
         except OSError as err:
-            ulk = live[owners[i]].sends[0][1]
-            ulk._failed(err)
-            ulk.sent_packets -= 1
+            failed(w.owners[i], err)
         n += 1
-    for k, c in Counter(owners[i] for i in order[:n]).items():
-        live[k].sends[0][1].sent_packets += c
     return n, late_max
 
 
