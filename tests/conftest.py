@@ -4,7 +4,9 @@ test marked ``exclusive`` run alone among the suite's workers (pytest-xdist)."""
 from __future__ import annotations
 
 import fcntl
+import os
 import socket
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -13,10 +15,8 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(autouse=True)
-def _exclusive_among_workers(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[None]:
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """A readers-writer lock over the suite's workers (``-n 2`` in pyproject's addopts).
 
     Every test holds ``suite.lock`` shared; a test marked ``exclusive`` (it measures what
@@ -24,10 +24,17 @@ def _exclusive_among_workers(
     at its real rate) holds it alone, so the other worker does not run a test beside it:
     those tests get both cores, as they did before the suite ran on two workers. A waiting
     exclusive test holds ``turnstile.lock``, which every test passes through first, so
-    the other worker cannot keep it waiting. The files live in the run's base directory,
-    which every worker of one run shares (one process without xdist: no one waits)."""
-    run_dir = tmp_path_factory.getbasetemp().parent
-    exclusive = request.node.get_closest_marker("exclusive") is not None
+    the other worker cannot keep it waiting.
+
+    Taken around the whole test protocol, outside pytest-timeout's own wrapper (this one
+    is ``tryfirst``): the wait for the other worker's exclusive test (the soak: minutes)
+    is not counted against a test's timeout. The files are in a directory of this run,
+    which its workers share (``PYTEST_XDIST_TESTRUNUID``; one process without xdist has
+    its own: no one waits)."""
+    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
+    run_dir = Path(tempfile.gettempdir()) / f"glmav-pytest-{run_id}"
+    run_dir.mkdir(exist_ok=True)
+    exclusive = item.get_closest_marker("exclusive") is not None
     with (run_dir / "turnstile.lock").open("a") as gate, (run_dir / "suite.lock").open("a") as lock:
         fcntl.flock(gate, fcntl.LOCK_EX)
         if exclusive:
