@@ -1,7 +1,10 @@
 """The records the service produces: the contract between estimation and every sink.
 
-Each record is a frozen dataclass with a ``to_dict()`` giving the JSON payload of
-``design.md`` (one object per sample, ``schema`` first). Frames and units are in the
+Each record is immutable, with a ``to_dict()`` giving the JSON payload of ``design.md``
+(one object per sample, ``schema`` first): a frozen dataclass, except
+:class:`VelocityRecord`, a ``NamedTuple``: an estimator builds five or six of them per IMU
+sample, and a frozen dataclass's ``__init__`` (one ``object.__setattr__`` per field) costs
+2.5× a tuple's (1.9 against 0.75 µs for its 11 fields). Frames and units are in the
 field names: ``v_body_mps`` is FRD body-frame velocity in m/s, ``v_ned_mps`` is the
 earth-frame (NED) velocity in m/s, ``t_boot_s`` is the vehicle's boot clock in s.
 
@@ -13,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 # the vocabulary of the records, from the table of configurations (exported with them)
 from glmav_observer.configurations import CONFIGS, NED_AXES, AxisName
@@ -55,8 +58,7 @@ def _vec(v: Vec3 | None) -> list[float | None] | None:
     return [None if not math.isfinite(x) else float(x) for x in v]
 
 
-@dataclass(frozen=True, slots=True)
-class VelocityRecord:
+class VelocityRecord(NamedTuple):
     """One configuration's estimate at one vehicle time (key ``glmav/<sysid>/velocity/<config>``).
 
     ``config`` is one of ``CONFIGS``, ``"active"`` or ``"aided"``; for ``"active"``,
@@ -81,7 +83,7 @@ class VelocityRecord:
     seq: int
     source_config: str | None = None
     sigma_lost_mps: float | None = None
-    schema: str = field(default=VELOCITY_SCHEMA)
+    schema: str = VELOCITY_SCHEMA
 
     def to_dict(self) -> dict[str, Any]:
         return {
