@@ -305,18 +305,20 @@ class ObserverBank:
         return np.array(self._x) @ self.e_last.T
 
     def e_last_flat(self) -> list[float]:
-        """:attr:`e_last` as a row-major list of 9 floats (the same values, no array)."""
+        """:attr:`e_last` as a row-major list of 9 floats (the same values, no array).
+        Read-only: the bank's own list (each step makes a new one), not a copy."""
         e = self._E_last
-        return list(e) if isinstance(e, list) else e.ravel().tolist()
+        return e if isinstance(e, list) else e.ravel().tolist()
 
-    def estimates_lists(self) -> tuple[list[list[float]], list[list[float]]]:
-        """(body, NED) estimates as lists of 4 lists of 3 floats: :attr:`x_hat_body_mps`
-        and :meth:`x_hat_ned_mps` without numpy, for the per-step records (the NED one
-        summed in matmul's order; test_bank asserts both equal the arrays)."""
-        body = [[r[0], r[1], r[2]] for r in self._x]
+    def estimates_lists(self) -> tuple[list[list[float]], list[tuple[float, float, float]]]:
+        """(body, NED) estimates, 4 rows of 3 floats each: :attr:`x_hat_body_mps` and
+        :meth:`x_hat_ned_mps` without numpy, for the per-step records (the NED one summed
+        in matmul's order; test_bank asserts both equal the arrays). Read-only: the body
+        rows are the bank's own (each step makes new ones)."""
+        body = list(self._x)
         e00, e01, e02, e10, e11, e12, e20, e21, e22 = self.e_last_flat()
         ned = [
-            [e00 * u + e01 * v + e02 * w, e10 * u + e11 * v + e12 * w, e20 * u + e21 * v + e22 * w]
+            (e00 * u + e01 * v + e02 * w, e10 * u + e11 * v + e12 * w, e20 * u + e21 * v + e22 * w)
             for u, v, w in body
         ]
         return body, ned
@@ -400,7 +402,10 @@ class ObserverBank:
             raise NonFiniteInputError("inputs overflow (sum of |values| is not finite)")
         if h < 0.0:
             raise ValueError(f"dt_s must be >= 0, got {h!r}")
-        masks = self._masks(y, meas_mask)
+        if meas_mask is None and math.isfinite(y[0] + y[1] + y[2]):
+            masks = _STANDARD_MASKS  # (a finite sum: every axis finite)
+        else:
+            masks = self._masks(y, meas_mask)
         self._masks_last = masks
         if self.e_form == "exact" and (
             masks is _STANDARD_MASKS or all(m[0] + m[1] + m[2] >= 2 for m in masks)

@@ -84,22 +84,34 @@ class HeldInputs:
         """Advance A, its history, C and B over [t − dt, t] with E = ``e_flat`` (row-major)
         held."""
         assert self.f_body_mps2 is not None
-        a = rotate_flat(e_flat, self.f_body_mps2)  # E Γ = E f + g e_d (V̇ = E Γ)
-        a[2] += self.g_mps2
+        f = self.f_body_mps2
+        a = rotate_flat(e_flat, f)  # E Γ = E f + g e_d (V̇ = E Γ)
+        a_n_dt = a[0] * dt
+        a_e_dt = a[1] * dt
         ai = self.a_int
-        ai[0] += a[0] * dt
-        ai[1] += a[1] * dt
-        ai[2] += a[2] * dt
+        ai[0] += a_n_dt
+        ai[1] += a_e_dt
+        ai[2] += (a[2] + self.g_mps2) * dt
         hist = self._a_hist
         hist.append((t, ai[0], ai[1], ai[2]))
         while len(hist) > 2 and hist[1][0] <= t - LAG_WINDOW_S:
             hist.popleft()
         # C = ∫ (−a_e, a_n, 0) dt: the heading-error regressor (fdi module docstring)
-        self.c_int[0] -= a[1] * dt
-        self.c_int[1] += a[0] * dt
+        c = self.c_int
+        c[0] -= a_e_dt
+        c[1] += a_n_dt
+        # B = ∫ E dt (ReferenceFit), entry by entry
+        e0, e1, e2, e3, e4, e5, e6, e7, e8 = e_flat
         bi = self._b_int
-        bi[:] = [b + e * dt for b, e in zip(bi, e_flat, strict=True)]  # B = ∫ E dt (ReferenceFit)
-        f = self.f_body_mps2
+        bi[0] += e0 * dt
+        bi[1] += e1 * dt
+        bi[2] += e2 * dt
+        bi[3] += e3 * dt
+        bi[4] += e4 * dt
+        bi[5] += e5 * dt
+        bi[6] += e6 * dt
+        bi[7] += e7 * dt
+        bi[8] += e8 * dt
         fi = self._f_int
         fi[0] += f[0] * dt
         fi[1] += f[1] * dt

@@ -59,6 +59,8 @@ class RecordBuilder:
         self.sysid = sysid
         self.health_period_s = 1.0 / health_rate_hz
         self._seq: collections.Counter[str] = collections.Counter()
+        #: the configurations' sequence numbers (CONFIGS order), counted apart: every step
+        self._seq_config = [0] * len(CONFIGS)
         self.next_health_s: float | None = None
 
     def _seqn(self, key: str) -> int:
@@ -75,7 +77,7 @@ class RecordBuilder:
         self,
         t: float,
         body: Sequence[Sequence[float]],
-        ned: Sequence[Sequence[float]],
+        ned: Sequence[Vec3],
         n_faulty: int,
         sigma_lost_mps: Sequence[float | None],
         active: str,
@@ -85,19 +87,21 @@ class RecordBuilder:
         active_body_mps: Vec3 | None = None,
         active_health: str | None = None,
     ) -> None:
-        """The records of one step: every configuration (CONFIGS order: ``body``, ``ned``,
-        ``sigma_lost_mps`` per configuration), then ``active`` (its body velocity the active
-        configuration's, or ``active_body_mps`` when its NED one was moved: the aiding's
-        offset; its health ``active_health`` when given: ``aided``)."""
-        seq = self._seq
+        """The records of one step: every configuration (CONFIGS order: ``body``, ``ned``
+        (tuples, put in the records as they are), ``sigma_lost_mps`` per configuration),
+        then ``active`` (its body velocity the active configuration's, or
+        ``active_body_mps`` when its NED one was moved: the aiding's offset; its health
+        ``active_health`` when given: ``aided``)."""
+        seq = self._seq_config
         sysid = self.sysid
         for i, (c, lost, health_ok) in enumerate(_CONFIG_HEALTH):
-            seq[c] += 1
+            n = seq[i] + 1
+            seq[i] = n
             b, v = body[i], ned[i]
             out.append(
                 VelocityRecord(
-                    sysid, c, t, (b[0], b[1], b[2]), (v[0], v[1], v[2]), lost,
-                    health_ok if n_faulty == 0 else _health_faulty(lost), seq[c], None,
+                    sysid, c, t, (b[0], b[1], b[2]), v, lost,
+                    health_ok if n_faulty == 0 else _health_faulty(lost), n, None,
                     sigma_lost_mps[i],
                 )
             )  # fmt: skip
