@@ -161,7 +161,9 @@ class ActiveSelection:
         self.lost_idx = lost_idx
         return ev, from_dead_reckoning
 
-    def settle_jump(self, ned_l: Sequence[Sequence[float]], c_int: Sequence[float]) -> SwitchEvent | None:
+    def settle_jump(
+        self, ned_l: Sequence[Sequence[float]], c_int: Sequence[float]
+    ) -> SwitchEvent | None:
         """The pending switch with its jump: the new active against what the old one says
         at this same time (not against its value at the switch: the vehicle moved)."""
         sw = self.pending
