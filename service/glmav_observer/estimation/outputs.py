@@ -9,7 +9,6 @@ sequence number.
 
 from __future__ import annotations
 
-import collections
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -58,14 +57,15 @@ class RecordBuilder:
     def __init__(self, sysid: int, health_rate_hz: float) -> None:
         self.sysid = sysid
         self.health_period_s = 1.0 / health_rate_hz
-        self._seq: collections.Counter[str] = collections.Counter()
+        self._seq: dict[str, int] = {}
         #: the configurations' sequence numbers (CONFIGS order), counted apart: every step
         self._seq_config = [0] * len(CONFIGS)
         self.next_health_s: float | None = None
 
     def _seqn(self, key: str) -> int:
-        self._seq[key] += 1
-        return self._seq[key]
+        n = self._seq.get(key, 0) + 1
+        self._seq[key] = n
+        return n
 
     def measurement(self, s: VelocitySample, euler_rad: Vec3 | None) -> MeasurementRecord:
         return MeasurementRecord(
