@@ -106,7 +106,7 @@ def _step_closed_form(  # noqa: PLR0917 -- the inputs of one step, in the API or
     E: list[float],
     we: list[float],
     a: list[float],
-    y: list[float],
+    y: Sequence[float],
     lost: Sequence[int],
     terms: list[tuple[float, float, float]],
     gammas: tuple[float, ...],
@@ -170,7 +170,7 @@ def _step_standard(  # noqa: PLR0917 -- the inputs of one step, in the API order
     E: list[float],
     we: list[float],
     a: list[float],
-    y: list[float],
+    y: Sequence[float],
     terms: list[tuple[float, float, float]],
     gammas: tuple[float, ...],
     h: float,
@@ -357,7 +357,9 @@ class ObserverBank:
         self._x = np.broadcast_to(arr, (4, 3)).tolist()
 
     # ------------------------------------------------------------------ update
-    def _masks(self, y: list[float], meas_mask: ArrayLike | None) -> list[tuple[bool, bool, bool]]:
+    def _masks(
+        self, y: Sequence[float], meas_mask: ArrayLike | None
+    ) -> list[tuple[bool, bool, bool]]:
         fin = [math.isfinite(c) for c in y]
         if meas_mask is None:
             if fin[0] and fin[1] and fin[2]:
@@ -389,11 +391,27 @@ class ObserverBank:
         :class:`ShapeError` / :class:`NonFiniteInputError` / ``ValueError`` (dt_s < 0)
         before any state changes.
         """
-        h = float(dt_s)
-        phi, th, psi = eul = _vec3("euler_rad", euler_rad)
-        w = _vec3("omega_body_radps", omega_body_radps)
-        f = _vec3("f_body_mps2", f_body_mps2)
-        y = _vec3("v_ned_meas_mps", v_ned_meas_mps)
+        self.step_floats(
+            float(dt_s),
+            _vec3("euler_rad", euler_rad),
+            _vec3("omega_body_radps", omega_body_radps),
+            _vec3("f_body_mps2", f_body_mps2),
+            _vec3("v_ned_meas_mps", v_ned_meas_mps),
+            meas_mask,
+        )
+
+    def step_floats(  # noqa: PLR0917 -- the inputs of one step, in the API order
+        self,
+        h: float,
+        eul: Sequence[float],
+        w: Sequence[float],
+        f: Sequence[float],
+        y: Sequence[float],
+        meas_mask: ArrayLike | None = None,
+    ) -> None:
+        """:meth:`step` for inputs that are already three Python floats each (a vehicle's
+        samples): no conversion, the same checks of values (NaN, dt_s < 0)."""
+        phi, th, psi = eul
         if not math.isfinite(h + phi + th + psi + w[0] + w[1] + w[2] + f[0] + f[1] + f[2]):
             for name, vals in (("dt_s", [h]), ("euler_rad", eul), ("omega_body_radps", w),
                                ("f_body_mps2", f)):  # fmt: skip
@@ -417,10 +435,10 @@ class ObserverBank:
     def _step_exact_fast(  # noqa: PLR0917 -- the inputs of one step, in the API order
         self,
         h: float,
-        eul: list[float],
-        w: list[float],
-        f: list[float],
-        y: list[float],
+        eul: Sequence[float],
+        w: Sequence[float],
+        f: Sequence[float],
+        y: Sequence[float],
         masks: list[tuple[bool, bool, bool]],
     ) -> None:
         E = e_flat(*eul)
@@ -448,10 +466,10 @@ class ObserverBank:
     def _step_numpy(  # noqa: PLR0917 -- the inputs of one step, in the API order
         self,
         h: float,
-        eul: list[float],
-        w: list[float],
-        f: list[float],
-        y: list[float],
+        eul: Sequence[float],
+        w: Sequence[float],
+        f: Sequence[float],
+        y: Sequence[float],
         masks: list[tuple[bool, bool, bool]],
     ) -> None:
         E = e_matrix(np.array(eul), self.e_form)

@@ -263,7 +263,7 @@ class VehicleEstimator:
         b_obs = self.sel.bank_bias(self.fdi)
         f_bank = f if b_obs is None else (f[0] - b_obs[0], f[1] - b_obs[1], f[2] - b_obs[2])
         mask = None if all(self._use) else self._use
-        self.bank.step(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
+        self.bank.step_floats(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
         e_flat = self.bank.e_last_flat()
         inputs.integrate(t, dt, e_flat)
         if self.aiding is not None and self.aiding.lost_idx is not None:
