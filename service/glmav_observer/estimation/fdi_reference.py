@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from operator import mul
 from typing import Any
 
 import numpy as np
@@ -149,7 +150,7 @@ class Reference:
         x = self.regressors(axis, ints)
         if not lagged:
             x[LAG] = 0.0
-        mean = a_int_j + sum(xi * ti for xi, ti in zip(x, self.theta, strict=True))
+        mean = a_int_j + sum(map(mul, x, self.theta))
         xv = np.asarray(x)
         var = float(xv @ self.cov @ xv)
         return mean, math.sqrt(max(var, 0.0))
