@@ -67,22 +67,25 @@ class FaultDetector:
         Below ``min_imu_rate_hz`` the IMU cannot predict the velocity: the residual tests
         are off and only dropout and freeze are tested.
         """
-        cfg = self.cfg
-        self.fit.imu_ok = imu_rate_hz >= cfg.min_imu_rate_hz
-        for ax in self.axes:
-            ax.vet(t_s)
-        self.fit.frozen_bias = any(ax.fault is not None for ax in self.axes)
-        self.fit.prune_and_fit(t_s)
+        fit = self.fit
+        fit.imu_ok = imu_rate_hz >= self.cfg.min_imu_rate_hz
+        a0, a1, a2 = self.axes
+        a0.vet(t_s)
+        a1.vet(t_s)
+        a2.vet(t_s)
+        fit.frozen_bias = a0.fault is not None or a1.fault is not None or a2.fault is not None
+        fit.prune_and_fit(t_s)
         v = (
-            self.axes[0].update(t_s, y_ned_mps[0], a_int_mps[0], ints),
-            self.axes[1].update(t_s, y_ned_mps[1], a_int_mps[1], ints),
-            self.axes[2].update(t_s, y_ned_mps[2], a_int_mps[2], ints),
+            a0.update(t_s, y_ned_mps[0], a_int_mps[0], ints),
+            a1.update(t_s, y_ned_mps[1], a_int_mps[1], ints),
+            a2.update(t_s, y_ned_mps[2], a_int_mps[2], ints),
         )
         recent = self._recent
         for j, vj in enumerate(v):
             if math.isfinite(vj.residual_mps) and self.axes[j].fault is None:
                 recent.append((t_s, j, vj.residual_mps, ints[0]))
-        while recent and recent[0][0] < t_s - self.cfg.change_window_s:
+        t_min = t_s - self.cfg.change_window_s
+        while recent and recent[0][0] < t_min:
             recent.popleft()
         return self._decide(t_s, v)
 

@@ -31,6 +31,7 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -75,7 +76,8 @@ class AxisMonitor:
     sigma_r_mps: float = 0.0
     _var_r: float = 0.0
     _pending: deque[tuple[float, float, bool, Integrals, float]] = field(default_factory=deque)
-    _resid: deque[float] = field(default_factory=deque)
+    #: the last max(bias_samples, noise_samples + 1) residuals (the tests' windows)
+    _resid: deque[float] = field(init=False)
     _last_y: float = math.nan
     _repeats: int = 0
     _nan_run: int = 0
@@ -109,6 +111,7 @@ class AxisMonitor:
     _rate_before_run: float = 0.5
 
     def __post_init__(self) -> None:
+        self._resid = deque(maxlen=max(self.cfg.bias_samples, self.cfg.noise_samples + 1))
         self._var_r = self.cfg.sigma_meas_mps**2
         # white noise of σ_meas: var(y_k − 2y_(k−1) + y_(k−2)) = 6σ²
         self.var_d2y_mps2 = 6.0 * self.cfg.sigma_meas_mps**2
@@ -207,7 +210,7 @@ class AxisMonitor:
         rn = r[-(cfg.noise_samples + 1) :]
         noise = math.nan
         if len(rn) == cfg.noise_samples + 1:
-            d2 = [(rn[i + 1] - rn[i]) ** 2 for i in range(cfg.noise_samples)]
+            d2 = [(b - a) ** 2 for a, b in pairwise(rn)]
             nominal = 2.0 * self.sigma_r_mps**2 * CHI2_1_MEDIAN
             noise = statistics.median(d2) / nominal / cfg.noise_ratio_threshold
             # A noisy residual is a noisy measurement only if the measurement itself is
@@ -282,8 +285,6 @@ class AxisMonitor:
                     cap = 16.0 * self.var_diff_mps2
                     self.var_diff_mps2 += (min(d2, cap) - self.var_diff_mps2) / cfg.scale_samples
             self._resid.append(r)
-            while len(self._resid) > max(cfg.bias_samples, cfg.noise_samples + 1):
-                self._resid.popleft()
         self._r_prev = r
         y1, y2 = self._y_prev
         if math.isfinite(y1) and math.isfinite(y2):
@@ -294,10 +295,12 @@ class AxisMonitor:
                 self.var_d2y_mps2 += (min(d2y_sq, cap) - self.var_d2y_mps2) / cfg.scale_samples
         self._y_prev = (y_mps, y1)
         bias_ratio, noise_ratio = self._ratios()
-        freeze_ratio = self._repeats / cfg.freeze_repeats
-        ratio = max(
-            (x for x in (bias_ratio, noise_ratio, freeze_ratio) if math.isfinite(x)), default=0.0
-        )
+        # the largest of the finite ratios (freeze's always is)
+        ratio = self._repeats / cfg.freeze_repeats
+        if bias_ratio > ratio and math.isfinite(bias_ratio):
+            ratio = bias_ratio
+        if noise_ratio > ratio and math.isfinite(noise_ratio):
+            ratio = noise_ratio
         if self.state in (AxisState.FAULTY, AxisState.RECOVERING):
             if math.isfinite(r) and self.fault is not None and self.fault.kind in RESIDUAL_KINDS:
                 self._ramp.append((t_s, r))

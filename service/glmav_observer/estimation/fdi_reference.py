@@ -30,10 +30,10 @@ unobserved heading error into a sudden acceleration is uncertain, and the tests 
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from operator import mul
 from typing import Any
 
 import numpy as np
@@ -55,10 +55,45 @@ LAG_SIGMA_MIN_S = 0.02
 _V0_PRECISION = 1e-4
 
 FloatArray = np.ndarray[Any, np.dtype[np.float64]]
-AnyArray = np.ndarray[Any, Any]
 #: One row's regressors: B(τ) flattened (9), C(τ) (3) and the earth-frame acceleration
 #: L(τ) (3, the IMU's mean over the last ``LAG_WINDOW_S``).
 Integrals = tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float]]
+#: The columns of :class:`ReferenceFit`'s rows as an array (:func:`_row_values`): axis, z,
+#: weight, then the N_THETA regressors.
+ROW_WIDTH = 3 + N_THETA
+#: One vetted sample of :class:`ReferenceFit`: (t, axis, z_j, B(t) flat 9, C(t) 3, σ_r of
+#: the axis, L(t) 3).
+Row = tuple[
+    float,
+    int,
+    float,
+    tuple[float, ...],
+    tuple[float, float, float],
+    float,
+    tuple[float, float, float],
+]
+
+
+def _row_values(row: Row, correlation_samples: float) -> tuple[float, ...]:
+    """One row of :class:`ReferenceFit` as a row of its array (:data:`ROW_WIDTH`): its
+    axis j, z_j, weight 1/(σ² ``correlation_samples``) and regressors before the anchor is
+    taken off: V0's indicator (3), B_j(τ) (3), C_j(τ), −L_j(τ)
+    (:meth:`ReferenceFit._fit` subtracts the first row's B_j and C_j, negates the B part)."""
+    _, j, z, b_int, c_int, sigma, l_now = row
+    k = 3 * j
+    return (
+        j,
+        z,
+        1.0 / sigma**2 / correlation_samples,
+        1.0 if j == 0 else 0.0,
+        1.0 if j == 1 else 0.0,
+        1.0 if j == 2 else 0.0,
+        b_int[k],
+        b_int[k + 1],
+        b_int[k + 2],
+        c_int[j],
+        -l_now[j],
+    )
 
 
 def sigma_dead_reckoning_mps(cfg: FdiConfig, age_s: float) -> float:
@@ -115,7 +150,7 @@ class Reference:
         x = self.regressors(axis, ints)
         if not lagged:
             x[LAG] = 0.0
-        mean = a_int_j + sum(xi * ti for xi, ti in zip(x, self.theta, strict=True))
+        mean = a_int_j + sum(map(mul, x, self.theta))
         xv = np.asarray(x)
         var = float(xv @ self.cov @ xv)
         return mean, math.sqrt(max(var, 0.0))
@@ -149,18 +184,8 @@ class ReferenceFit:
     """The Bayesian least squares of the module docstring, shared by the three axes."""
 
     cfg: FdiConfig
-    #: rows (t, axis, z_j, B(t) flat 9, C(t) 3, σ_r of the axis): one per vetted sample
-    rows: deque[
-        tuple[
-            float,
-            int,
-            float,
-            tuple[float, ...],
-            tuple[float, float, float],
-            float,
-            tuple[float, float, float],
-        ]
-    ] = field(default_factory=deque)
+    #: one :data:`Row` per vetted sample
+    rows: deque[Row] = field(default_factory=deque)
     ref: Reference | None = None
     fitted: bool = False
     frozen_bias: bool = False
@@ -180,9 +205,9 @@ class ReferenceFit:
     #: [_n_dropped, _n_added)
     _n_added: int = 0
     _n_dropped: int = 0
-    #: the rows' columns as arrays, kept between fits (a row is in ~20 fits): the number
-    #: of the first row they hold and (axis, z, 1/σ², B, C, L)
-    _cols: tuple[int, tuple[AnyArray, ...]] | None = None
+    #: the rows as one array (n, ROW_WIDTH), kept between fits (a row is in ~20 fits): the
+    #: number of the first row it holds, and the array (:meth:`_array`)
+    _rows_array: tuple[int, FloatArray] | None = None
 
     def carry_over(
         self,
@@ -271,41 +296,30 @@ class ReferenceFit:
         self.lag_memory_s = (kept * self.lag_memory_s + add * d_like) / total
         self.lag_memory_info = total
 
-    def _columns(self) -> tuple[AnyArray, ...]:
-        """(axis, z, 1/σ², B (n, 9), C (n, 3), L (n, 3)) of the rows as arrays: those of
-        the last fit still held, and the rows added since, converted once."""
+    def _array(self) -> FloatArray:
+        """The rows as one array (n, ROW_WIDTH), :func:`_row_values`: those of the last fit
+        still held, and the rows added since, converted once."""
         rows = self.rows
         first, end = self._n_dropped, self._n_added
-        kept = self._cols
-        if kept is not None and kept[0] <= first <= kept[0] + len(kept[1][0]):
-            skip = first - kept[0]
-            old = [col[skip:] for col in kept[1]]
-            start = len(old[0])
+        kept = self._rows_array
+        if kept is not None and kept[0] <= first <= kept[0] + len(kept[1]):
+            old = kept[1][first - kept[0] :]
         else:
-            old, start = [], 0
-        new = list(itertools.islice(rows, start, None))
-        m = len(new)
-        fresh: tuple[AnyArray, ...] = (
-            np.fromiter((r[1] for r in new), dtype=np.intp, count=m),
-            np.fromiter((r[2] for r in new), dtype=np.float64, count=m),
-            np.fromiter((1.0 / r[5] ** 2 for r in new), dtype=np.float64, count=m),
-            np.array([r[3] for r in new], dtype=np.float64).reshape(m, 9),
-            np.array([r[4] for r in new], dtype=np.float64).reshape(m, 3),
-            np.array([r[6] for r in new], dtype=np.float64).reshape(m, 3),
-        )
-        cols = (
-            fresh
-            if not old
-            else tuple(np.concatenate((o, f)) for o, f in zip(old, fresh, strict=True))
-        )
-        if not len(cols[0]) == end - first == len(rows):
+            old = np.empty((0, ROW_WIDTH))
+        corr = self.cfg.correlation_samples
+        k = len(old)
+        new = [_row_values(rows[i], corr) for i in range(k, len(rows))]
+        arr: FloatArray = np.empty((k + len(new), ROW_WIDTH))
+        arr[:k] = old
+        arr[k:] = np.array(new, dtype=np.float64).reshape(len(new), ROW_WIDTH)
+        if not len(arr) == end - first == len(rows):
             # the counts disagree with the rows (only if ``rows`` was changed from outside
-            # this class): start the columns afresh from the rows as they are
-            self._cols = None
+            # this class): start the array afresh from the rows as they are
+            self._rows_array = None
             self._n_dropped, self._n_added = 0, len(rows)
-            return self._columns()
-        self._cols = (first, cols)
-        return cols
+            return self._array()
+        self._rows_array = (first, arr)
+        return arr
 
     def _fit(self, new_rows: int = 0) -> None:
         rows = self.rows
@@ -315,22 +329,24 @@ class ReferenceFit:
         n = len(rows)
         b0 = rows[0][3]
         c0 = rows[0][4]
-        axes, z, w_rows, b_rows, c_rows, l_rows = self._columns()
-        w = w_rows / cfg.correlation_samples
-        Bj = (b_rows - np.asarray(b0)).reshape(n, 3, 3)[np.arange(n), axes]
-        Cj = (c_rows - np.asarray(c0))[np.arange(n), axes]
-        Lj = l_rows[np.arange(n), axes]
-        X = np.zeros((n, N_THETA))
-        X[np.arange(n), axes] = 1.0
-        X[:, 3:6] = -Bj
-        X[:, 6] = Cj
-        X[:, LAG] = -Lj
+        arr = self._array()
+        axes = arr[:, 0].astype(np.intp)
+        # contiguous arrays of their own, as BLAS (XtW @ z) has always been given them
+        z = arr[:, 1].copy()
+        w = arr[:, 2].copy()
+        # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) and C_j(τ) − C_j(τ₀)
+        anchor = np.array(
+            [[0.0, 0.0, 0.0, b0[3 * j], b0[3 * j + 1], b0[3 * j + 2], c0[j], 0.0] for j in range(3)]
+        )
+        X = np.subtract(arr[:, 3:], anchor[axes], order="C")
+        np.negative(X[:, 3:6], out=X[:, 3:6])
         prior = np.array(
             [_V0_PRECISION] * 3
             + [1.0 / cfg.prior_bias_mps2**2] * 3
             + [1.0 / cfg.prior_yaw_rad**2, 1.0 / cfg.prior_lag_s**2]
         )
-        present = [k for k in range(3) if np.any(axes == k)]
+        rows_per_axis = np.bincount(axes, minlength=3).tolist()
+        present = [k for k in range(3) if rows_per_axis[k] > 0]
         old = self.ref
         lag_prior = self._lag_prior()
         if self.frozen_bias and old is not None:
@@ -375,7 +391,7 @@ class ReferenceFit:
             )
         # bounded: a fit beyond any accelerometer's bias is not applied
         b = theta[3:6]
-        nb = float(np.linalg.norm(b))
+        nb = math.sqrt(float(b.dot(b)))  # np.linalg.norm(b), without its checks
         if nb > cfg.max_bias_mps2:
             theta[3:6] = b * (cfg.max_bias_mps2 / nb)
         # a measurement is late, never early; and no autopilot is later than max_lag_s

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import NamedTuple
 
 
 class AxisState(Enum):
@@ -78,9 +79,9 @@ class FdiConfig:
     change_window_s: float = 1.5
 
 
-@dataclass(frozen=True, slots=True)
-class AxisVerdict:
-    """What the FDI says about one axis after one measurement."""
+class AxisVerdict(NamedTuple):
+    """What the FDI says about one axis after one measurement (a named tuple: three are
+    made per measurement)."""
 
     use: bool  # feed this sample to the observers that measure the axis
     residual_mps: float  # NaN if not computable

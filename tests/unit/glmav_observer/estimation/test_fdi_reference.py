@@ -87,8 +87,8 @@ def test_dead_reckoning_age_is_the_inverse_of_its_sigma() -> None:
     assert dead_reckoning_age_s(cfg, 0.01) == 0.0
 
 
-def test_fit_columns_kept_between_fits_equal_the_rows_converted_afresh() -> None:
-    """ReferenceFit keeps its rows' arrays between fits (each row converted once): after
+def test_fit_rows_array_kept_between_fits_equals_the_rows_converted_afresh() -> None:
+    """ReferenceFit keeps its rows as an array between fits (each row converted once): after
     rows added, pruned and dropped in any order they equal the rows converted at once,
     bit for bit, and so does the fit."""
     rng = np.random.default_rng(7)
@@ -108,22 +108,28 @@ def test_fit_columns_kept_between_fits_equal_the_rows_converted_afresh() -> None
         if step == 300:
             for f in (fit, ref):
                 f.drop_before(t - 2.0)
-        ref._cols = None  # the reference converts every row at every fit
+        ref._rows_array = None  # the reference converts every row at every fit
         for f in (fit, ref):
             f.prune_and_fit(t)
         assert fit._n_added - fit._n_dropped == len(fit.rows)
         if step % 7 == 0:  # what the next fit would use, against the rows as they are
             rows = list(fit.rows)
-            afresh = (
-                np.array([r[1] for r in rows]),
-                np.array([r[2] for r in rows]),
-                np.array([1.0 / r[5] ** 2 for r in rows]),
-                np.array([r[3] for r in rows]).reshape(-1, 9),
-                np.array([r[4] for r in rows]).reshape(-1, 3),
-                np.array([r[6] for r in rows]).reshape(-1, 3),
+            n = len(rows)
+            axes = np.array([r[1] for r in rows])
+            x0 = np.zeros((n, 8))  # V0's indicator, B_j, C_j, −L_j of each row's axis j
+            x0[np.arange(n), axes] = 1.0
+            x0[:, 3:6] = np.array([r[3] for r in rows]).reshape(n, 3, 3)[np.arange(n), axes]
+            x0[:, 6] = np.array([r[4] for r in rows])[np.arange(n), axes]
+            x0[:, 7] = -np.array([r[6] for r in rows])[np.arange(n), axes]
+            afresh = np.column_stack(
+                (
+                    axes,
+                    np.array([r[2] for r in rows]),
+                    np.array([1.0 / r[5] ** 2 for r in rows]) / FdiConfig().correlation_samples,
+                    x0,
+                )
             )
-            kept = fit._columns()
-            assert all(np.array_equal(a, b) for a, b in zip(kept, afresh, strict=True))
+            assert np.array_equal(fit._array(), afresh)
         if fit.ref is not None:
             assert ref.ref is not None
             assert fit.ref.theta == ref.ref.theta
