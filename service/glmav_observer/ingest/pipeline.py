@@ -26,9 +26,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from glmav_observer.ingest.clock import Admission, ClockConfig, VehicleClock
+from glmav_observer.ingest.clock import ACCEPT, REORDERED, RESET, ClockConfig, VehicleClock
 from glmav_observer.ingest.convert import (
     SAMPLE_MESSAGES,
+    TIME_BOOT_MS,
     UNTIMED_MESSAGES,
     ConversionError,
     RawImuScale,
@@ -205,7 +206,7 @@ class Ingest:
         if _IMU_SOURCE[name] >= v.imu_source:
             return False
         kind = _IMU_TIME_KIND[name]
-        t_us = t_raw * 1000 if kind is TimeKind.BOOT_MS else t_raw
+        t_us = t_raw * 1000 if kind is TIME_BOOT_MS else t_raw
         t_s = v.clock.peek_boot_s(t_us, kind)
         if t_s is None or t_s - v.imu_source_t_s > self.config.imu_fallback_s:
             return False
@@ -336,10 +337,10 @@ class Ingest:
                     else "one source remains: estimation resumes",
                     extra={"sysid": v.sysid},
                 )
-            if adm is Admission.RESET and not v.conflict:
+            if adm is RESET and not v.conflict:
                 events.append(VehicleReset(v.sysid, t_s, "clock_reset"))
                 v.imu_source = None
-            elif adm not in (Admission.ACCEPT, Admission.REORDERED):
+            elif adm is not ACCEPT and adm is not REORDERED:
                 return
         if v.conflict:
             v.counters["conflicting_sources_dropped"] += 1
