@@ -336,9 +336,9 @@ class ReferenceFit:
         w = arr[:, 2].copy()
         # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) and C_j(τ) − C_j(τ₀)
         anchor = np.array(
-            [[0.0, 0.0, 0.0, b0[3 * j], b0[3 * j + 1], b0[3 * j + 2], c0[j], 0.0] for j in range(3)]
-        )
-        X = np.subtract(arr[:, 3:], anchor[axes], order="C")
+            [x for j in range(3) for x in (0.0, 0.0, 0.0, *b0[3 * j : 3 * j + 3], c0[j], 0.0)]
+        ).reshape(3, N_THETA)
+        X = np.subtract(arr[:, 3:], anchor.take(axes, axis=0), order="C")
         np.negative(X[:, 3:6], out=X[:, 3:6])
         prior = np.array(
             [_V0_PRECISION] * 3

@@ -296,11 +296,8 @@ class DragModel:
         if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El)) + sum(rho or ())):
             return  # a NaN or infinity anywhere makes the sum non-finite
         sig_f = self._sigma_f_list()
-        phis: list[list[float]] = []
-        P_phis: list[list[float]] = []
-        errs: list[float] = []
-        pPps: list[float] = []
-        var_fs: list[float] = []
+        # per body row: (s_j, Pφ, e, φᵀPφ, σ_f²)
+        row_terms: list[tuple[float, list[float], float, float, float]] = []
         outlier = False
         trusted = self._n_eff >= cfg.n_eff_min
         if self._t_seen_s is not None:
@@ -341,11 +338,7 @@ class DragModel:
             var_f = sig_f[j] ** 2
             if trusted and e * e > cfg.outlier_sigma**2 * (var_f + pPp):
                 outlier = True
-            phis.append(phi)
-            P_phis.append(P_phi)
-            errs.append(e)
-            pPps.append(pPp)
-            var_fs.append(var_f)
+            row_terms.append((sj, P_phi, e, pPp, var_f))
         self._two_row_n = 0
         self._inconsistency = 0.0
         if trusted and self.n_learned % cfg.validate_every == 0:
@@ -369,11 +362,9 @@ class DragModel:
         self._t_last_s = t_s
         self._n_eff = lam * self._n_eff + 1.0
         inv_l = 1.0 / lam
-        for j in range(2):
-            e, var_f, pPp, P_phi = errs[j], var_fs[j], pPps[j], P_phis[j]
+        for j, (sj, P_phi, e, pPp, var_f) in enumerate(row_terms):
             # σ_f: residual scaled to σ_f² by its expected variance σ_f² + φᵀPφ
             self._res_sum[j] = lam * self._res_sum[j] + e * e * var_f / (var_f + pPp)
-            sj = -phis[j][1]
             self._s_sum[j] = lam * self._s_sum[j] + sj
             self._s2_sum[j] = lam * self._s2_sum[j] + sj * sj
             # Λ ← λΛ + (1 − λ)Λ₀ + φφᵀ/σ_f² in covariance form: forgetting P/λ and the
@@ -384,6 +375,7 @@ class DragModel:
             ge = g * e
             self._th[j] = [t + ge * pa for t, pa in zip(self._th[j], P_phi, strict=True)]
             c = inv_l * inv_l / denom
+            c_P_phi = [c * x for x in P_phi]
             if rho is None:
                 p0, p1, p2, p3, p4 = P_phi
                 self._Pl[j] = [
@@ -394,12 +386,12 @@ class DragModel:
                         Pr[3] * inv_l - ca * p3,
                         Pr[4] * inv_l - ca * p4,
                     ]
-                    for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+                    for Pr, ca in zip(self._Pl[j], c_P_phi, strict=True)
                 ]
             else:
                 self._Pl[j] = [
                     [pr * inv_l - ca * pk for pr, pk in zip(Pr, P_phi, strict=True)]
-                    for Pr, ca in zip(self._Pl[j], (c * x for x in P_phi), strict=True)
+                    for Pr, ca in zip(self._Pl[j], c_P_phi, strict=True)
                 ]
         self._prior_due = lam * self._prior_due + (1.0 - lam)
         self.n_learned += 1
