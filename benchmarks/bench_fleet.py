@@ -53,9 +53,9 @@ from glmav_testkit.fleet_helpers import udp_queue
 
 ROOT = Path(__file__).resolve().parents[1]
 SITL = str(Path(sys.executable).with_name("glmav-sitl"))
-VEHICLES = (2, 5, 10, 25, 35, 50, 100)
+VEHICLES = (2, 5, 10, 15, 20, 25, 35, 50, 100)
 VEHICLES_QUICK = (5, 25, 100)
-VEHICLES_ROUTER = (10, 25, 35, 50, 100)
+VEHICLES_ROUTER = (10, 20, 25, 35, 50, 100)
 VEHICLES_ROUTER_QUICK = (25, 100)
 SATURATED_DROP_PCT = 10.0
 GOAL_VEHICLES = 100

@@ -103,7 +103,7 @@ def _build_parser() -> argparse.ArgumentParser:
     f.add_argument("--duration", type=float, default=None, help="stop after S s (default: log end)")
     f.add_argument("--speed", type=float, default=1.0, help="rate factor (default 1: as recorded)")
     f.add_argument("--stagger", type=float, default=1.0, metavar="S",
-                   help="vehicle starts spread over S s (default 1)")  # fmt: skip
+                   help="vehicle starts spread over S s, each at its own phase of the log (default 1)")  # fmt: skip
     sub.add_parser(
         "scenarios",
         help="list the packaged scenarios",

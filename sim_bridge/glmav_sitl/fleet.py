@@ -14,8 +14,13 @@ removed and the signed flag cleared (the output is unsigned), counted in
 ``signatures_stripped`` and said once on stderr. Frames whose recorded CRC is wrong, or
 whose message the dialect does not know, are left out and counted.
 
-Vehicle k starts ``k * stagger_s / K`` after the first (so K copies of one log do not
-send in lock-step). Scheduling is by windows of wall time (``WINDOW_S``, 20 ms): the
+Vehicle k starts ``(k + {k/φ}) * stagger_s / K`` after the first (:func:`start_offsets_s`):
+the starts are spread over ``stagger_s`` and, above all, each vehicle's frames fall at its
+own phase of the log's frame periods, as K vehicles with their own clocks would send. A
+start of ``k * stagger_s / K`` alone is a whole number of the simulator's 2 ms ticks for
+most K (1 s / 10 = 50 ticks): K copies of one log then send in lock-step, each tick's
+frames of every vehicle in one burst, and the service's latency measures the burst.
+Scheduling is by windows of wall time (``WINDOW_S``, 20 ms): the
 frames every vehicle has due in the window (a bisect over its log's times) are merged by
 due time, and each is sent once its time has come (sleeping when the next is more than
 ``MIN_SLEEP_S`` away). Frames are rewritten for a vehicle a chunk at a time
@@ -63,6 +68,8 @@ _IFLAG_SIGNED = 0x01
 _STAMP = struct.Struct(">Q")
 #: the MAVLink system id of a ground station (left out when picking the log's vehicle)
 GCS_SYSID = 255
+#: 1/φ, the golden ratio's fractional part: {k/φ} is the most evenly spread sequence in [0, 1)
+GOLDEN_FRACTION = 0.6180339887498949
 
 
 class FleetError(ValueError):
@@ -353,6 +360,17 @@ class _Vehicle:
         return out
 
 
+def start_offsets_s(vehicles: int, stagger_s: float) -> list[float]:
+    """When each of ``vehicles`` starts, in s after the first: ``(k + {k/φ}) stagger_s / K``.
+
+    ``k stagger_s / K`` spreads the starts; ``{k/φ} stagger_s / K`` (the fractional part
+    of k times 1/φ, a low-discrepancy sequence) moves each vehicle off the others' phase
+    of the log's frame periods, whatever the period and K (for the fleet benchmark's K
+    and the design log's 2, 4 and 10 ms periods, no two vehicles' phases are closer than
+    a sixth of period/K; ``k stagger_s / K`` alone puts most of them at one phase)."""
+    return [(k + (k * GOLDEN_FRACTION) % 1.0) * stagger_s / vehicles for k in range(vehicles)]
+
+
 def run_fleet(
     logs: Sequence[Log],
     links: Sequence[str],
@@ -388,9 +406,9 @@ def run_fleet(
             arrays[id(logs[k % len(logs)])],
             times[id(logs[k % len(logs)])],
             sysid_base + k,
-            k * stagger_s / vehicles,
+            offset_s,
         )
-        for k in range(vehicles)
+        for k, offset_s in enumerate(start_offsets_s(vehicles, stagger_s))
     ]
     opened: list[Link] = []
     shared: list[Link] = []  # stream links: every vehicle on one stream

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import random
 import struct
 from pathlib import Path
@@ -10,7 +11,15 @@ import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from glmav_sitl.fleet import FleetError, LogArrays, crc_delta, load_tlog, rewrite, x25_crc
+from glmav_sitl.fleet import (
+    FleetError,
+    LogArrays,
+    crc_delta,
+    load_tlog,
+    rewrite,
+    start_offsets_s,
+    x25_crc,
+)
 
 KEY = bytes(range(32))
 
@@ -101,3 +110,28 @@ def test_a_file_without_frames_is_refused_with_its_name(tmp_path: Path) -> None:
         load_tlog(p)
     with pytest.raises(FleetError, match=r"missing\.tlog: cannot read"):
         load_tlog(tmp_path / "missing.tlog")
+
+
+def _min_phase_gap(offsets_s: list[float], period_s: float) -> float:
+    """The smallest distance between two vehicles' phases of ``period_s``, in periods."""
+    ph = sorted((o % period_s) / period_s for o in offsets_s)
+    return min(b - a for a, b in zip(ph, [*ph[1:], ph[0] + 1.0], strict=True))
+
+
+@pytest.mark.parametrize("vehicles", [2, 5, 10, 25, 35, 50, 100])
+def test_vehicles_send_at_their_own_phase_of_the_logs_periods(vehicles: int) -> None:
+    """K vehicles with their own clocks do not send in lock-step: each vehicle's frames fall
+    at its own phase of the design log's periods (the simulator's 2 ms tick, HIGHRES_IMU's
+    4 ms, ATTITUDE's 10 ms), for the fleet benchmark's vehicle counts."""
+    offsets = start_offsets_s(vehicles, 1.0)
+    assert offsets[0] == 0.0 and all(b > a for a, b in itertools.pairwise(offsets))
+    assert offsets[-1] < 1.0  # the starts stay within the stagger
+    for period_s in (0.002, 0.004, 0.010):
+        # perfectly even phases would be 1/K apart; {k/φ} keeps at least a sixth of that
+        # (its worst over these K and periods is 0.197/K, at K = 2 and 10 ms)
+        assert _min_phase_gap(offsets, period_s) >= 1.0 / (6 * vehicles)
+        # the start alone, k/K s, is a whole number of 2 ms ticks for each of these K
+        # but 35: every vehicle at one phase, each tick's frames sent in one burst
+        lockstep = [k / vehicles for k in range(vehicles)]
+        if vehicles != 35:
+            assert _min_phase_gap(lockstep, period_s) < 1e-6
