@@ -59,6 +59,11 @@ VEHICLES_ROUTER = (10, 20, 25, 35, 50, 100)
 VEHICLES_ROUTER_QUICK = (25, 100)
 SATURATED_DROP_PCT = 10.0
 GOAL_VEHICLES = 100
+#: the design rates: ATTITUDE 100 Hz, HIGHRES_IMU 250 Hz, LOCAL_POSITION_NED 30 Hz, HEARTBEAT 1 Hz
+DATAGRAMS_PER_VEHICLE_S = 381
+#: the baseline mode: one process that decodes and ingests but does not estimate
+NO_ESTIMATION = "1 worker, no estimation"
+VEHICLES_NO_ESTIMATION = (25, 50, 100)
 
 
 def _config(n_vehicles: int) -> ServiceConfig:
@@ -96,10 +101,18 @@ def _drain(port: int) -> None:
     time.sleep(0.2)  # the last datagram read is still being estimated
 
 
-def _point_single(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
+class _NoEstimation(Service):
+    """The baseline of the estimator's cost: the service's read loop, decoding and ingest
+    (admission, conversion to samples), and no estimation (no records)."""
+
+    def _handle(self, events: list[Any], link_id: str) -> int:
+        return 0
+
+
+def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) -> dict[str, Any]:
     port = _free_udp_port()
     cfg = _config(n)
-    svc = Service(cfg, [])
+    svc = Service(cfg, []) if estimate else _NoEstimation(cfg, [])
     hist = LatencyHistogram()
     orig = svc.feed_bytes
     clock = time.monotonic
@@ -127,7 +140,9 @@ def _point_single(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
     cpu = time.process_time() - cpu0  # this process: the service thread (and idle waits)
     s = svc.summary()
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
-    row = _row("1 worker", n, gen, frames_ok, drops, hist, len(s.vehicles))
+    mode = "1 worker" if estimate else NO_ESTIMATION
+    row = _row(mode, n, gen, frames_ok, drops, hist, len(s.vehicles))
+    row["routing"] = "one process"
     row["worker_us_per_datagram"] = 1e6 * cpu / max(1, frames_ok)
     return row
 
@@ -213,18 +228,24 @@ def run(quick: bool = False) -> dict[str, Any]:
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="glmav-bench-fleet-") as tmp:
         tlog = record_tlog(Path(tmp) / "design.tlog", seconds + 2.0, truth=False)
-        for mode in ("single", "sharded", "router"):
-            for n in counts if mode != "router" else router_counts:
+        for mode in ("single", "sharded", "router", "no_estimation"):
+            if mode == "no_estimation":
+                mode_counts: tuple[int, ...] = (
+                    VEHICLES_NO_ESTIMATION[1:] if quick else VEHICLES_NO_ESTIMATION
+                )
+            else:
+                mode_counts = counts if mode != "router" else router_counts
+            for n in mode_counts:
                 t0 = time.monotonic()
-                if mode == "single":
-                    row = _point_single(tlog, n, seconds)
+                if mode in ("single", "no_estimation"):
+                    row = _point_single(tlog, n, seconds, estimate=mode == "single")
                 else:
                     row = _point_sharded(tlog, n, seconds, workers, kernel=mode == "sharded")
                 row["sent_per_s"] = row["sent"] / seconds
                 row["wall_s"] = time.monotonic() - t0
                 rows.append(row)
                 print(row, file=sys.stderr, flush=True)
-                if mode == "single" and row["dropped_pct"] > SATURATED_DROP_PCT:
+                if mode in ("single", "no_estimation") and row["dropped_pct"] > SATURATED_DROP_PCT:
                     break  # saturated: more vehicles only drop more
     best = {
         m: max(
@@ -288,12 +309,18 @@ def run(quick: bool = False) -> dict[str, Any]:
                 higher_is_better=False,
             )
         )
+    # what 100 vehicles leave per datagram on these cores (the generator included), against
+    # what decoding, ingest and the read loop alone cost (no estimation), same run
+    budget_us = 1e6 * workers / (GOAL_VEHICLES * DATAGRAMS_PER_VEHICLE_S)
+    floor = {r["vehicles"]: r["worker_us_per_datagram"] for r in rows if r["mode"] == NO_ESTIMATION}
     return {
         "name": "bench_fleet",
+        "budget_us_per_datagram": budget_us,
+        "no_estimation_us_per_datagram": floor,
         "quick": quick,
         "seconds_per_point": seconds,
         "workers": workers,
-        "datagrams_per_vehicle_s": 381,
+        "datagrams_per_vehicle_s": DATAGRAMS_PER_VEHICLE_S,
         "loadavg_before": load_before,
         "loadavg_after": os.getloadavg(),
         "rows": rows,
@@ -340,6 +367,8 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"curve stops after its first point above {SATURATED_DROP_PCT:.0f} % dropped. "
         "`worker_us_per_datagram`: the workers' CPU time per datagram decoded.",
         "",
+        _floor_text(r),
+        "",
         "Vehicles held (< 0.1 % dropped and p99 ≤ 5 ms): "
         + ", ".join(f"{k}: {v}" for k, v in sorted(r["vehicles_held"].items()))
         + ". Most datagrams decoded per second (at saturation): "
@@ -349,6 +378,24 @@ def to_markdown(result: dict[str, Any]) -> str:
         format_table(table),
         "",
     ])  # fmt: skip
+
+
+def _floor_text(r: dict[str, Any]) -> str:
+    """What decoding, ingest and the read loop cost without estimation, against the
+    100-vehicle budget (empty for a result recorded before the baseline existed)."""
+    floor = r.get("no_estimation_us_per_datagram") or {}
+    if not floor:
+        return ""
+    budget = r["budget_us_per_datagram"]
+    points = ", ".join(f"{v} µs at {k} vehicles" for k, v in (
+        (k, f"{floor[k]:.0f}") for k in sorted(floor, key=int)))  # fmt: skip
+    return (
+        f"`{NO_ESTIMATION}` (the baseline of the estimator's cost): the same process "
+        "reading, decoding and ingesting the same traffic, with no estimation and no "
+        f"records: {points} of CPU per datagram. {GOAL_VEHICLES} vehicles × "
+        f"{r['datagrams_per_vehicle_s']} datagrams/s on {r['workers']} cores leave "
+        f"{budget:.1f} µs per datagram for the generator and the service together."
+    )
 
 
 if __name__ == "__main__":
