@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import os
 import re
+import select
 import socket
 import subprocess
 import sys
@@ -64,6 +65,9 @@ DATAGRAMS_PER_VEHICLE_S = 381
 #: the baseline mode: one process that decodes and ingests but does not estimate
 NO_ESTIMATION = "1 worker, no estimation"
 VEHICLES_NO_ESTIMATION = (25, 50, 100)
+#: the floor: one thread that reads the port and does nothing with what it reads
+READ_ONLY = "read only"
+VEHICLES_READ_ONLY = (25, 100)
 
 
 def _config(n_vehicles: int) -> ServiceConfig:
@@ -144,6 +148,43 @@ def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) 
     row = _row(mode, n, gen, frames_ok, drops, hist, len(s.vehicles))
     row["routing"] = "one process"
     row["worker_us_per_datagram"] = 1e6 * cpu / max(1, frames_ok)
+    return row
+
+
+def _point_read_only(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
+    """The floor of any service in this process model: a thread that only waits on the
+    port (``select``) and reads its datagrams with their kernel stamps (``Link.read``, as
+    ``Service.run`` does), and does nothing with them."""
+    port = _free_udp_port()
+    cfg = _config(n)
+    link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
+    stop = threading.Event()
+    hist = LatencyHistogram()
+    read = [0]
+
+    def loop() -> None:
+        fd, clock = link.fileno(), time.monotonic
+        while not stop.is_set():
+            ready, _, _ = select.select([fd], [], [], 0.05)
+            while ready and link.read():
+                hist.add(clock() - link.arrival_s)
+                read[0] += 1
+
+    cpu0 = time.process_time()
+    th = threading.Thread(target=loop, daemon=True)
+    th.start()
+    try:
+        gen = _generate(tlog, port, n, seconds)
+        _drain(port)
+    finally:
+        stop.set()
+        th.join(30.0)
+        drops = udp_queue(port)[1]
+        link.close()
+    cpu = time.process_time() - cpu0
+    row = _row(READ_ONLY, n, gen, read[0], drops, hist, 0)
+    row["routing"] = "one process"
+    row["worker_us_per_datagram"] = 1e6 * cpu / max(1, read[0])
     return row
 
 
@@ -228,16 +269,20 @@ def run(quick: bool = False) -> dict[str, Any]:
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="glmav-bench-fleet-") as tmp:
         tlog = record_tlog(Path(tmp) / "design.tlog", seconds + 2.0, truth=False)
-        for mode in ("single", "sharded", "router", "no_estimation"):
+        for mode in ("single", "sharded", "router", "no_estimation", "read_only"):
             if mode == "no_estimation":
                 mode_counts: tuple[int, ...] = (
                     VEHICLES_NO_ESTIMATION[1:] if quick else VEHICLES_NO_ESTIMATION
                 )
+            elif mode == "read_only":
+                mode_counts = VEHICLES_READ_ONLY[1:] if quick else VEHICLES_READ_ONLY
             else:
                 mode_counts = counts if mode != "router" else router_counts
             for n in mode_counts:
                 t0 = time.monotonic()
-                if mode in ("single", "no_estimation"):
+                if mode == "read_only":
+                    row = _point_read_only(tlog, n, seconds)
+                elif mode in ("single", "no_estimation"):
                     row = _point_single(tlog, n, seconds, estimate=mode == "single")
                 else:
                     row = _point_sharded(tlog, n, seconds, workers, kernel=mode == "sharded")
@@ -313,10 +358,21 @@ def run(quick: bool = False) -> dict[str, Any]:
     # what decoding, ingest and the read loop alone cost (no estimation), same run
     budget_us = 1e6 * workers / (GOAL_VEHICLES * DATAGRAMS_PER_VEHICLE_S)
     floor = {r["vehicles"]: r["worker_us_per_datagram"] for r in rows if r["mode"] == NO_ESTIMATION}
+    read_floor = {
+        r["vehicles"]: r["worker_us_per_datagram"] for r in rows if r["mode"] == READ_ONLY
+    }
+    # the generator's CPU per datagram it sent (µs), beside the read floor
+    generator_us = {
+        r["vehicles"]: 1e4 * r["generator_core_pct"] / max(1.0, r["sent_per_s"])
+        for r in rows
+        if r["mode"] == READ_ONLY
+    }
     return {
         "name": "bench_fleet",
         "budget_us_per_datagram": budget_us,
         "no_estimation_us_per_datagram": floor,
+        "read_only_us_per_datagram": read_floor,
+        "generator_us_per_datagram": generator_us,
         "quick": quick,
         "seconds_per_point": seconds,
         "workers": workers,
@@ -387,14 +443,26 @@ def _floor_text(r: dict[str, Any]) -> str:
     if not floor:
         return ""
     budget = r["budget_us_per_datagram"]
-    points = ", ".join(f"{v} µs at {k} vehicles" for k, v in (
-        (k, f"{floor[k]:.0f}") for k in sorted(floor, key=int)))  # fmt: skip
-    return (
+
+    def points(d: dict[Any, float]) -> str:
+        return ", ".join(f"{d[k]:.1f} µs at {k} vehicles" for k in sorted(d, key=int))
+
+    text = (
         f"`{NO_ESTIMATION}` (the baseline of the estimator's cost): the same process "
         "reading, decoding and ingesting the same traffic, with no estimation and no "
-        f"records: {points} of CPU per datagram. {GOAL_VEHICLES} vehicles × "
-        f"{r['datagrams_per_vehicle_s']} datagrams/s on {r['workers']} cores leave "
-        f"{budget:.1f} µs per datagram for the generator and the service together."
+        f"records: {points(floor)} of CPU per datagram."
+    )
+    read_floor = r.get("read_only_us_per_datagram") or {}
+    if read_floor:
+        text += (
+            f" `{READ_ONLY}` (the floor of any service that reads each datagram with a "
+            f"system call): {points(read_floor)}; the generator beside it: "
+            f"{points(r['generator_us_per_datagram'])}."
+        )
+    return text + (
+        f" {GOAL_VEHICLES} vehicles × {r['datagrams_per_vehicle_s']} datagrams/s on "
+        f"{r['workers']} cores leave {budget:.1f} µs per datagram for the generator and the "
+        "service together."
     )
 
 
