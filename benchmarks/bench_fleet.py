@@ -49,7 +49,7 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.workers import ShardedServer, worker_specs
-from glmav_observer.ingest.links import Link
+from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, Link
 from glmav_testkit.fleet_helpers import udp_queue
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,6 +113,12 @@ class _NoEstimation(Service):
         return 0
 
 
+def _counted_drops(summary: Any) -> int:
+    """The datagrams the service itself counted as dropped by the kernel (its summary's
+    links): equal to ``kernel_drops``, read from /proc/net/udp, when it counts right."""
+    return sum(c.get(KERNEL_DROPS_COUNTER, 0) for c in summary.link_counters.values())
+
+
 def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) -> dict[str, Any]:
     port = _free_udp_port()
     cfg = _config(n)
@@ -146,6 +152,7 @@ def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) 
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
     mode = "1 worker" if estimate else NO_ESTIMATION
     row = _row(mode, n, gen, frames_ok, drops, hist, len(s.vehicles))
+    row["kernel_drops_counted"] = _counted_drops(s)
     row["routing"] = "one process"
     row["worker_us_per_datagram"] = 1e6 * cpu / max(1, frames_ok)
     return row
@@ -222,6 +229,7 @@ def _point_sharded(
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
     mode = f"{workers} workers" if kernel else f"{workers} workers, router"
     row = _row(mode, n, gen, frames_ok, drops, result.latency, len(s.vehicles))
+    row["kernel_drops_counted"] = _counted_drops(s)
     row["routing"] = "kernel" if server.kernel_routed else "router"
     row["worker_cpu_s"] = sum(result.worker_cpu_s.values())
     row["worker_us_per_datagram"] = 1e6 * row["worker_cpu_s"] / max(1, frames_ok)

@@ -39,7 +39,7 @@ from glmav_observer.ingest.framing import (
     SigningState,
     new_dialect,
 )
-from glmav_observer.ingest.links import Link
+from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, KernelDrops, Link
 from glmav_observer.ingest.pipeline import (
     IMU_MESSAGE_IDS,
     Ingest,
@@ -81,6 +81,8 @@ class Service:
         self._retired: dict[int, VehicleEstimator] = {}
         self.decoders: dict[str, FrameDecoder] = {}
         self.counters: collections.Counter[str] = collections.Counter()
+        #: datagrams the kernel dropped on the UDP links this service reads (it fell behind)
+        self.kernel_drops = KernelDrops()
         self.records = 0
         self.messages = 0
         #: frames to send: (link id, bytes, peer); the live loop writes them to its links
@@ -310,6 +312,7 @@ class Service:
                         break
             now = clock()
             if now >= next_rate_check:
+                self.kernel_drops.check(links)
                 self.rate_requests(now)
                 if self.signing is not None:
                     self.signing.save()
@@ -319,6 +322,7 @@ class Service:
                 if lid in links:
                     links[lid].write(frame, peer)
         self._final_drain(links, clock)
+        self.kernel_drops.check(links)
 
     def _final_drain(self, links: dict[str, Link], clock: Callable[[], float]) -> None:
         """At stop: what is already queued on the links is still read, for at most
@@ -352,7 +356,7 @@ class Service:
             )
         return ServiceSummary(
             vehicles=vehicles,
-            link_counters={k: d.counters.as_dict() for k, d in sorted(self.decoders.items())},
+            link_counters=self._link_counters(),
             service_counters=dict(
                 sorted(
                     sum(
@@ -365,6 +369,13 @@ class Service:
             messages=self.messages,
             failed_sinks=list(self.failed_sinks),
         )
+
+    def _link_counters(self) -> dict[str, dict[str, int]]:
+        """Per link: its frames' counters, and the datagrams the kernel dropped on it."""
+        counters = {k: d.counters.as_dict() for k, d in self.decoders.items()}
+        for lid, n in self.kernel_drops.drops.items():
+            counters.setdefault(lid, {})[KERNEL_DROPS_COUNTER] = n
+        return dict(sorted(counters.items()))
 
     def copy_state(self) -> Service:
         """A deep copy of this service: its ingest, estimators, counters and sinks (for

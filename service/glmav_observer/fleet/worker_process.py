@@ -182,6 +182,8 @@ class _WorkerLoop:
             now = clock()
             nv = len(service.ingest.vehicles)
             if nv != n_vehicles or now >= next_rate_check:
+                if now >= next_rate_check:
+                    service.kernel_drops.check(self.direct)
                 n_vehicles = nv
                 service.rate_requests(now)
                 next_rate_check = now + RATE_CHECK_PERIOD_S
@@ -190,6 +192,7 @@ class _WorkerLoop:
         for lid, lk in self.direct.items():
             while time.monotonic() < deadline and self._read(lid, lk, 64, at_stop=True):
                 pass
+        service.kernel_drops.check(self.direct)
         self._answer()
 
     def _read(self, lid: str, lk: Link, max_reads: int, *, at_stop: bool = False) -> int:

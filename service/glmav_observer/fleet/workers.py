@@ -66,7 +66,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from glmav_observer.app import stop_on_signals
+from glmav_observer.app import RATE_CHECK_PERIOD_S, stop_on_signals
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.latency import LatencyHistogram
@@ -80,7 +80,12 @@ from glmav_observer.fleet.worker_process import (
     worker_main,
     worker_rerun_mode,
 )
-from glmav_observer.ingest.links import DEFAULT_UDP_RECEIVE_BUFFER_BYTES, Link
+from glmav_observer.ingest.links import (
+    DEFAULT_UDP_RECEIVE_BUFFER_BYTES,
+    KERNEL_DROPS_COUNTER,
+    KernelDrops,
+    Link,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -174,6 +179,9 @@ class ShardedServer:
         self.workers: list[_Worker] = []
         self.owner: dict[int, int] = {}
         self.counters: Counter[str] = Counter()
+        #: datagrams the kernel dropped on the links the parent reads (the workers count
+        #: those on their own sockets)
+        self.kernel_drops = KernelDrops()
         self.out = specs[0].out if specs else None
         #: links the kernel routes to the workers' own sockets
         self.kernel_routed: list[str] = []
@@ -277,6 +285,7 @@ class ShardedServer:
         """Read ``links`` until ``stop_event`` is set, routing to the workers."""
         splitters: dict[str, StreamSplitter] = {}
         by_result = {w.results.fileno(): w for w in self.workers}
+        next_drop_check = clock() + RATE_CHECK_PERIOD_S
         while not stop_event.is_set():
             by_fd: dict[int, tuple[str, Link]] = {}
             for lid, lk in links.items():
@@ -319,6 +328,10 @@ class ShardedServer:
             for w in self.workers:
                 if w.batch and now - min(w.batch[0][1], w.flushed_s) >= FLUSH_AFTER_S:
                     self._flush(w)
+            if now >= next_drop_check:
+                self.kernel_drops.check(links)
+                next_drop_check = now + RATE_CHECK_PERIOD_S
+        self.kernel_drops.check(links)
         for w in self.workers:
             self._flush(w)
 
@@ -375,8 +388,12 @@ class ShardedServer:
         latency = LatencyHistogram()
         for r in results:
             latency.merge(r.latency)
+        summary = merge_summaries([r.summary for r in results], self.counters)
+        for lid, n in self.kernel_drops.drops.items():  # the parent's own reads
+            c = summary.link_counters.setdefault(lid, {})
+            c[KERNEL_DROPS_COUNTER] = c.get(KERNEL_DROPS_COUNTER, 0) + n
         return ShardedSummary(
-            summary=merge_summaries([r.summary for r in results], self.counters),
+            summary=summary,
             latency=latency,
             # datagrams each worker estimated: routed here, or read from its own socket
             routed={r.index: r.items for r in results},

@@ -23,7 +23,9 @@ import importlib.util
 import logging
 import socket
 import struct
+import sys
 import time
+from collections.abc import Mapping
 from typing import Any
 
 logger = logging.getLogger(__name__)
@@ -34,6 +36,12 @@ SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 #: struct timespec of the stamp: seconds and nanoseconds (CLOCK_REALTIME)
 _TIMESPEC = struct.Struct("@qq")
 _ANCILLARY_BYTES = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
+#: getsockopt(SOL_SOCKET, SO_MEMINFO) (linux/asm-generic/socket.h: 55; Python does not
+#: name it): a socket's memory counters, SK_MEMINFO_DROPS the datagrams the kernel dropped
+#: on it (the column ``drops`` of /proc/net/udp). Linux only: elsewhere 55 is another option
+SO_MEMINFO = 55
+_SK_MEMINFO = struct.Struct("=9I")  # SK_MEMINFO_RMEM_ALLOC ... SK_MEMINFO_DROPS (index 8)
+_SK_MEMINFO_DROPS = 8
 #: TCP client links: reconnect delay after a disconnect, doubling up to the maximum (s).
 RECONNECT_FIRST_S = 0.1
 RECONNECT_MAX_S = 5.0
@@ -307,6 +315,20 @@ class Link:
         except OSError as err:
             logger.warning("link write failed", extra={"link": self.conn, "error": str(err)})
 
+    def kernel_drops(self) -> int | None:
+        """Datagrams the kernel dropped on this link's UDP socket since it was opened: its
+        receive buffer was full, because the service read too slowly (None: not a UDP
+        socket of ours, closed, or an OS that does not say)."""
+        if self._sock is None or not self.datagram or self._closed or sys.platform != "linux":
+            return None
+        try:
+            raw = self._sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, _SK_MEMINFO.size)
+        except OSError:
+            return None
+        if len(raw) < _SK_MEMINFO.size:
+            return None
+        return int(_SK_MEMINFO.unpack_from(raw)[_SK_MEMINFO_DROPS])
+
     def close(self) -> None:
         self._closed = True
         if self._sock is not None:
@@ -314,3 +336,38 @@ class Link:
         if self._m is not None:
             with contextlib.suppress(OSError):
                 self._m.close()
+
+
+#: the summary's per-link counter of :class:`KernelDrops`
+KERNEL_DROPS_COUNTER = "datagrams_dropped_by_kernel"
+
+
+class KernelDrops:
+    """Datagrams the kernel dropped on the UDP links because the service fell behind
+    (:meth:`Link.kernel_drops`): read at each :meth:`check` (the service's periodic
+    checks and its stop), kept per link, and said in a warning at the first drop and
+    each time the count reaches ten times the last one said. A service over its capacity
+    otherwise loses datagrams without a word: only the latency would show it."""
+
+    def __init__(self) -> None:
+        #: link id -> datagrams dropped (only links that dropped any)
+        self.drops: dict[str, int] = {}
+        self._warn_at: dict[str, int] = {}
+
+    def check(self, links: Mapping[str, Link]) -> None:
+        for lid, lk in links.items():
+            n = lk.kernel_drops()
+            if not n or n <= self.drops.get(lid, 0):
+                continue
+            self.drops[lid] = n
+            if n >= self._warn_at.get(lid, 1):
+                warn_at = 10
+                while warn_at <= n:
+                    warn_at *= 10
+                self._warn_at[lid] = warn_at
+                logger.warning(
+                    "the kernel dropped datagrams: the service reads this link too slowly "
+                    "(more vehicles or higher rates than its cores estimate: see "
+                    "docs/deployment.md, serve --workers)",
+                    extra={"link": lid, "dropped": n},
+                )

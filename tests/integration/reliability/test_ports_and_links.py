@@ -212,3 +212,83 @@ def test_a_datagrams_arrival_is_the_kernels_stamp_not_its_read(
         assert t_read - link.arrival_s >= 0.045  # the 50 ms in the queue, not ~0
     finally:
         link.close()
+
+
+def _heartbeats(n: int) -> list[bytes]:
+    """``n`` MAVLink 2 HEARTBEAT frames of system 1 (21 bytes each)."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    enc = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+    return [bytes(enc.heartbeat_encode(2, 3, 0, 0, 4).pack(enc)) for _ in range(n)]
+
+
+#: a receive buffer the kernel fills after a few dozen small datagrams (it doubles what is
+#: asked, and each datagram costs its payload plus ~1 kB of bookkeeping)
+SMALL_RCVBUF = 16384
+
+
+def test_the_datagrams_the_kernel_drops_on_a_link_are_counted(
+    free_udp_port: Callable[[], int],
+) -> None:
+    """A link whose reader falls behind loses datagrams in the kernel: the link says how
+    many, the same number the kernel gives in /proc/net/udp."""
+    from glmav_testkit.fleet_helpers import udp_queue
+
+    port = free_udp_port()
+    link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=SMALL_RCVBUF)
+    try:
+        assert link.kernel_drops() == 0
+        frames = _heartbeats(500)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for f in frames:  # loopback: each is queued or dropped inside sendto
+                tx.sendto(f, ("127.0.0.1", port))
+        dropped = link.kernel_drops()
+        assert dropped is not None and dropped > 0
+        assert dropped == udp_queue(port)[1]
+        read = 0
+        while link.read():
+            read += 1
+        # loopback loses nothing else: every datagram was read or dropped, none twice
+        assert read + dropped == len(frames)
+        assert read > 0
+    finally:
+        link.close()
+    assert link.kernel_drops() is None  # closed: nothing to ask
+
+
+def test_a_service_over_its_capacity_says_so_and_counts_what_the_kernel_dropped(
+    free_udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Datagrams that arrive faster than the service reads them are lost in the kernel's
+    receive buffer: the service's summary counts them on the link and one warning names
+    the link (not one per datagram)."""
+    from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER
+    from glmav_testkit.fleet_helpers import udp_queue
+
+    port = free_udp_port()
+    link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=SMALL_RCVBUF)
+    svc = Service(ServiceConfig(request_rates=False))
+    frames = _heartbeats(500)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for f in frames:  # before the service reads: the buffer fills and the rest drops
+            tx.sendto(f, ("127.0.0.1", port))
+    dropped = udp_queue(port)[1]
+    assert dropped > 0
+    stop = threading.Event()
+    caplog.set_level("WARNING", logger="glmav_observer.ingest.links")
+    th = threading.Thread(target=svc.run, args=({"udp": link}, stop))
+    th.start()
+    deadline = time.monotonic() + 30.0
+    while udp_queue(port)[0] and time.monotonic() < deadline:
+        time.sleep(0.01)
+    stop.set()
+    th.join(30.0)
+    link.close()
+    c = svc.summary().link_counters["udp"]
+    assert c[KERNEL_DROPS_COUNTER] == dropped
+    assert c["frames_ok"] + dropped == len(frames)
+    warned = [r for r in caplog.records if "the kernel dropped datagrams" in r.getMessage()]
+    assert [(getattr(r, "link", None), getattr(r, "dropped", None)) for r in warned] == [
+        ("udp", dropped)
+    ]
+    assert f"{KERNEL_DROPS_COUNTER}={dropped}" in svc.summary().to_text()
