@@ -39,7 +39,7 @@ import psutil
 from glmav_observer.app import Service
 from glmav_observer.config import load_config
 from glmav_observer.estimation.vehicle import VehicleEstimator
-from glmav_observer.ingest.links import Link
+from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, Link
 from glmav_observer.ingest.samples import AttitudeSample, ImuSample, TruthSample, VelocitySample
 from glmav_observer.records import Record
 from glmav_testkit import REPO_ROOT
@@ -292,6 +292,10 @@ def soak(
         "frames_ok": frames_ok,
         "rejected_frames": summary.rejected_frames,
         "kernel_drops": drops,
+        # what the service itself counted (SO_MEMINFO on its sockets): equal to /proc's
+        "kernel_drops_counted": sum(
+            c.get(KERNEL_DROPS_COUNTER, 0) for c in summary.link_counters.values()
+        ),
         "messages": summary.messages,
         "ingest_samples": counts["ingest_samples"],
         "estimator_samples": counts["estimator_samples"],
