@@ -40,6 +40,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -113,6 +114,32 @@ class _NoEstimation(Service):
         return 0
 
 
+def _with_traffic(
+    tlog: Path,
+    port: int,
+    n: int,
+    seconds: float,
+    *,
+    serve: Callable[[threading.Event], object],
+    close: Callable[[], object],
+) -> tuple[dict[str, float], int]:
+    """Run ``serve(stop)`` in a thread while the generator sends ``n`` vehicles to
+    ``port``, until the port's queue is read; then stop it and ``close``. Returns the
+    generator's summary and the datagrams the kernel dropped on the port."""
+    stop = threading.Event()
+    th = threading.Thread(target=serve, args=(stop,), daemon=True)
+    th.start()
+    try:
+        gen = _generate(tlog, port, n, seconds)
+        _drain(port)
+    finally:
+        stop.set()
+        th.join(30.0)
+        drops = udp_queue(port)[1]
+        close()
+    return gen, drops
+
+
 def _counted_drops(summary: Any) -> int:
     """The datagrams the service itself counted as dropped by the kernel (its summary's
     links): equal to ``kernel_drops``, read from /proc/net/udp, when it counts right."""
@@ -135,18 +162,14 @@ def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) 
     svc.feed_bytes = feed_bytes  # type: ignore[method-assign]
     cpu0 = time.process_time()
     link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
-    stop = threading.Event()
-    th = threading.Thread(target=svc.run, args=({"udp": link}, stop), daemon=True)
-    th.start()
-    try:
-        gen = _generate(tlog, port, n, seconds)
-        _drain(port)
-    finally:
-        stop.set()
-        th.join(30.0)
-        drops = udp_queue(port)[1]
+
+    def close() -> None:
         link.close()
         svc.close()
+
+    gen, drops = _with_traffic(
+        tlog, port, n, seconds, serve=lambda st: svc.run({"udp": link}, st), close=close
+    )
     cpu = time.process_time() - cpu0  # this process: the service thread (and idle waits)
     s = svc.summary()
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
@@ -165,11 +188,10 @@ def _point_read_only(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
     port = _free_udp_port()
     cfg = _config(n)
     link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
-    stop = threading.Event()
     hist = LatencyHistogram()
     read = [0]
 
-    def loop() -> None:
+    def loop(stop: threading.Event) -> None:
         fd, clock = link.fileno(), time.monotonic
         while not stop.is_set():
             ready, _, _ = select.select([fd], [], [], 0.05)
@@ -178,16 +200,7 @@ def _point_read_only(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
                 read[0] += 1
 
     cpu0 = time.process_time()
-    th = threading.Thread(target=loop, daemon=True)
-    th.start()
-    try:
-        gen = _generate(tlog, port, n, seconds)
-        _drain(port)
-    finally:
-        stop.set()
-        th.join(30.0)
-        drops = udp_queue(port)[1]
-        link.close()
+    gen, drops = _with_traffic(tlog, port, n, seconds, serve=loop, close=link.close)
     cpu = time.process_time() - cpu0
     row = _row(READ_ONLY, n, gen, read[0], drops, hist, 0)
     row["routing"] = "one process"
@@ -212,19 +225,17 @@ def _point_sharded(
     links = {}
     if server.router_links or not kernel:
         links[conn] = Link(conn, udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
-    stop = threading.Event()
-    th = threading.Thread(target=server.run, args=(links, stop), daemon=True)
-    th.start()
-    try:
-        gen = _generate(tlog, port, n, seconds)
-        _drain(port)
-    finally:
-        stop.set()
-        th.join(30.0)
-        drops = udp_queue(port)[1]
+    closed = []
+
+    def close() -> None:
         for lk in links.values():
             lk.close()
-        result = server.close()
+        closed.append(server.close())
+
+    gen, drops = _with_traffic(
+        tlog, port, n, seconds, serve=lambda st: server.run(links, st), close=close
+    )
+    result = closed[0]
     s = result.summary
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
     mode = f"{workers} workers" if kernel else f"{workers} workers, router"
