@@ -66,7 +66,7 @@ def _service_run(msgs: list[tuple[Any, float]], sink: RerunSink | None = None) -
     """The daemon's pipeline (app.Service, as ``replay`` runs it) over decoded messages."""
     records: list[Record] = []
     service = Service(ServiceConfig(), [sink] if sink is not None else [])
-    service.on_records = records.extend
+    service.on_records = records.extend  # (a hook reads every record)
     for msg, t_host_s in msgs:
         service.feed_message(msg, t_host_s, "bench")
     if sink is not None and not sink.flush(timeout_s=600):  # until handed to Rerun

@@ -51,6 +51,7 @@ from glmav_observer.ingest.pipeline import (
 )
 from glmav_observer.ingest.rates import encode_rate_request
 from glmav_observer.publish.sink import Sink
+from glmav_observer.reads import READS_ALL, READS_SCORING, Reads, ReadsGate, reads_of
 from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, VelocityRecord
 
 logger = logging.getLogger(__name__)
@@ -100,10 +101,45 @@ class Service:
         # what we send is signed with the same key (a signed vehicle ignores the rest)
         self._mav = new_dialect(self.signing, config.signing_key)
         self._closed = False
-        self.on_records: Callable[[list[Record]], None] | None = None
+        self._on_records: Callable[[list[Record]], None] | None = None
         self._links: dict[str, Link] = {}
         #: per vehicle: its estimates scored against truth, where truth comes (the summary)
         self._scorers: dict[int, TruthScorer] = {}
+        #: what the estimators build (the union of the sinks' reads) and, per sink that
+        #: reads less, the gate that hands it only its own (glmav_observer.reads)
+        self.built: Reads = READS_ALL
+        self._gates: dict[int, ReadsGate] = {}
+        self._update_reads()
+
+    # ------------------------------------------------------------------ outputs
+    def _update_reads(self) -> None:
+        """What the estimators build: the union of what the sinks read (a sink that does
+        not say reads everything; so does the ``on_records`` hook), and the service's own
+        truth (the summary scores the estimates built against it)."""
+        built = READS_SCORING
+        for sink in self.sinks:
+            built = built.union(reads_of(sink))
+        if self._on_records is not None:
+            built = READS_ALL
+        self._gates = {
+            id(sink): ReadsGate(r, built)
+            for sink in self.sinks
+            if not (r := reads_of(sink)).covers(built)
+        }
+        if built != self.built:
+            self.built = built
+            for est in self.estimators.values():
+                est.out.set_reads(built)
+
+    @property
+    def on_records(self) -> Callable[[list[Record]], None] | None:
+        """Called with every record built, after the sinks (a hook reads every record)."""
+        return self._on_records
+
+    @on_records.setter
+    def on_records(self, hook: Callable[[list[Record]], None] | None) -> None:
+        self._on_records = hook
+        self._update_reads()
 
     # ------------------------------------------------------------------ input
     def decoder(self, link_id: str, *, datagram: bool = True) -> FrameDecoder:
@@ -170,7 +206,11 @@ class Service:
         v = self.ingest.vehicles[sysid]
         old = self._retired.pop(sysid, None)
         est = VehicleEstimator(
-            sysid, self.config.estimation, input_counters=v.input_counters, rates_fn=v.rates.rates
+            sysid,
+            self.config.estimation,
+            input_counters=v.input_counters,
+            rates_fn=v.rates.rates,
+            reads=self.built,
         )
         if old is not None:  # a vehicle seen again after eviction keeps its history
             est.faults, est.switches = old.faults, old.switches
@@ -217,14 +257,22 @@ class Service:
             elif type(r) is TruthRecord:
                 sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
                 sc.add_truth(r.t_boot_s, r.v_ned_mps)
+        gates = self._gates
         for sink in list(self.sinks):
             try:
-                for r in records:
-                    sink.write(r)
+                gate = gates.get(id(sink))
+                if gate is None:
+                    for r in records:
+                        sink.write(r)
+                else:
+                    admit = gate.admit
+                    for r in records:
+                        if admit(r):
+                            sink.write(r)
             except Exception as err:  # one failing sink (a full disk) must not stop the rest
                 self._sink_failed(sink, err)
-        if self.on_records is not None:
-            self.on_records(records)
+        if self._on_records is not None:
+            self._on_records(records)
 
     def _sink_failed(self, sink: Sink, err: BaseException) -> None:
         """Isolate a sink whose write raised: log, count, close it, keep the others going.
@@ -233,6 +281,7 @@ class Service:
         vehicle's counters, which health records publish (``counters.sink_failed``)."""
         name = type(sink).__name__
         self.sinks.remove(sink)
+        self._update_reads()
         self.failed_sinks.append((name, str(err)))
         self.counters["sink_failed"] += 1
         self.counters[f"sink_failed_{name}"] += 1

@@ -49,6 +49,35 @@ def check_tcp_port_free(host: str, port: int, what: str) -> None:
             ) from None
 
 
+def describe_outputs(
+    config: ServiceConfig, *, out: str | None = None, rerun_mode: str | None = None
+) -> list[str]:
+    """One line per output :func:`open_sinks` would open (for the log at start): where
+    the estimates go and what of them."""
+    from glmav_observer.publish.zenoh_keys import alive_key
+
+    lines: list[str] = []
+    path = out if out is not None else config.out
+    if path:
+        lines.append(f"file {path}: every record")
+    z = config.zenoh
+    if z.enabled:
+        session = z.config or "the embedded loopback peer (no router needed)"
+        lines.append(
+            f"zenoh via {session}: keys {z.prefix}/<sysid>/velocity/<config>, "
+            f"{z.prefix}/<sysid>/health, .../measurement, .../truth "
+            f"(liveliness {alive_key(z.prefix, config.service_id)}); "
+            f"{z.reads().describe()}"
+        )
+    m = config.mavlink_out
+    if m.enabled:
+        lines.append(f"mavlink out {m.link}: active at {m.rate_hz:g} Hz, events, health")
+    mode = rerun_mode if rerun_mode is not None else config.rerun.mode
+    if mode != "off":
+        lines.append(f"rerun {mode}: every record")
+    return lines
+
+
 def open_sinks(
     config: ServiceConfig,
     *,
@@ -83,6 +112,7 @@ def open_sinks(
                     service_id=config.service_id,
                     effective_config=config.effective(),
                     check_unique=zenoh_check_unique,
+                    reads=config.zenoh.reads(),
                 )
             )
         if config.mavlink_out.enabled:

@@ -35,6 +35,14 @@ from glmav_observer.publish.schema import (
     KINDS,
     decimation_reason,
 )
+from glmav_observer.reads import (
+    EVERY,
+    LIVE_DEFAULT_RATES_HZ,
+    READS_ALL,
+    STREAMS,
+    Reads,
+    rate_reason,
+)
 from glmav_toml import Check, ConfigError, TableReader, load_toml, one_of, within
 
 #: The rates the estimator needs (``[rates.min_hz]``): a stream below is asked for.
@@ -65,10 +73,20 @@ DEFAULT_RATES_HZ: dict[str, float] = {
 
 @dataclass(frozen=True, slots=True)
 class ZenohSettings:
-    enabled: bool = False
+    #: ``serve`` publishes on Zenoh unless told not to (the embedded loopback peer needs
+    #: no router); ``replay`` and ``batch`` only when asked
+    enabled: bool = True
     config: str = ""
     prefix: str = DEFAULT_PREFIX
     decimation: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_DECIMATION))
+    #: per record stream, the rate published (Hz of vehicle time; glmav_observer.reads)
+    rates_hz: Mapping[str, float] = field(default_factory=lambda: dict(LIVE_DEFAULT_RATES_HZ))
+    #: every record of every stream, whatever ``rates_hz`` says (``serve --full-rate``)
+    full_rate: bool = False
+
+    def reads(self) -> Reads:
+        """What the Zenoh sink reads (and so what the estimators build for it)."""
+        return READS_ALL if self.full_rate else Reads(self.rates_hz)
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +147,8 @@ class ServiceConfig:
                 return {str(k): plain(v) for k, v in x.items()}
             if isinstance(x, tuple | list):
                 return [plain(v) for v in x]
+            if x == EVERY:  # a read rate (glmav_observer.reads): JSON has no infinity
+                return "every"
             return x
 
         out: dict[str, Any] = plain(self)
@@ -383,12 +403,16 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     # [zenoh]
     zr = root.sub("zenoh")
     dec_r = zr.sub("decimation")
+    rates_r = zr.sub("rates")
     zenoh = ZenohSettings(
         enabled=zr.get("enabled", bool, d.zenoh.enabled),
         config=zr.get("config", str, d.zenoh.config),
         prefix=zr.get("prefix", str, d.zenoh.prefix, _key_prefix),
         decimation={k: dec_r.get(k, int, DEFAULT_DECIMATION[k], decimation_reason) for k in KINDS},
+        rates_hz={k: _read_rate(rates_r, k, d.zenoh.rates_hz[k]) for k in STREAMS},
+        full_rate=zr.get("full_rate", bool, d.zenoh.full_rate),
     )
+    rates_r.done()
     dec_r.done()
     zr.done()
     # [rerun]
@@ -470,6 +494,23 @@ def _mavlink_out(root: TableReader, file: str) -> MavlinkOutSettings:
     if settings.enabled and not settings.link:
         raise ConfigError(file, "mavlink_out.link", "required when mavlink_out.enabled = true")
     return settings
+
+
+def _read_rate(table: TableReader, stream: str, default: float) -> float:
+    """A read rate (``[zenoh.rates]``): Hz of vehicle time, 0 = not published, or
+    ``"every"`` for every record."""
+    if table.table.get(stream) == "every":
+        table.used.add(stream)
+        return EVERY
+    reason = 'must be a number of Hz >= 0.01, 0 (not published) or "every" (every record)'
+
+    def check(v: float) -> str | None:
+        return None if rate_reason(v) is None else reason
+
+    if stream in table.table and isinstance(table.table[stream], str):
+        raise table.error(stream, f"{reason}, got {table.table[stream]!r}")
+    value: float = table.get(stream, float, default, check)
+    return value
 
 
 def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:

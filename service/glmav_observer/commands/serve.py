@@ -5,7 +5,10 @@ There is no built-in link: 14550 is the ground stations' port, and a daemon that
 by default would steal the vehicle from the GCS (docs/deployment.md shows where to
 attach). ``--config configs/service.toml``, ``--zenoh PATH.json5`` (enables Zenoh with
 that session config), ``--rerun off|spawn|save:PATH|connect:URL|serve`` and ``--out
-PATH.csv|.jsonl`` override the file. ``--workers N`` shards vehicles by system id across
+PATH.csv|.jsonl`` override the file. Estimates are published on Zenoh by default (the embedded loopback peer:
+no router needed; ``--no-zenoh`` to stop, ``--full-rate`` for every record of every
+configuration instead of ``[zenoh.rates]``), and the log says at start where they go.
+``--workers N`` shards vehicles by system id across
 N worker processes (:mod:`glmav_observer.fleet.workers`; ``--workers 1`` is the
 single-process service). Without ``--workers``: the number of cores this process may use
 (its CPU affinity), or 1 when an output needs one process (``--rerun spawn|serve``: one
@@ -50,7 +53,13 @@ def register(sub: Any) -> None:
                         f"required otherwise, e.g. {EXAMPLE_LINK})")  # fmt: skip
     p.add_argument("--config", default=None, help="service.toml (default: built-in defaults)")
     p.add_argument("--zenoh", default=None, metavar="PATH.json5",
-                   help="enable Zenoh with this session config")  # fmt: skip
+                   help="Zenoh session config (default: [zenoh].config, or the embedded "
+                   "loopback peer, which needs no router)")  # fmt: skip
+    p.add_argument("--no-zenoh", action="store_true",
+                   help="do not publish on Zenoh (it is on by default: [zenoh].enabled)")  # fmt: skip
+    p.add_argument("--full-rate", action="store_true",
+                   help="publish every record of every configuration on Zenoh (default: "
+                   "[zenoh.rates], e.g. active 50 Hz, configurations 10 Hz, health 5 Hz)")  # fmt: skip
     p.add_argument("--rerun", default=None, metavar="MODE",
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
@@ -125,6 +134,9 @@ def main(args: argparse.Namespace) -> int:
             config = replace(config, mavlink_out=out)
         if args.rerun is not None and (reason := check_rerun_mode(args.rerun)):
             raise ConfigError("--rerun", "mode", reason)
+        if args.no_zenoh and args.zenoh is not None:
+            raise ConfigError("--no-zenoh", "zenoh", "--zenoh PATH and --no-zenoh contradict")
+        config = _zenoh_flags(config, args)
         links = args.link or list(config.links)
     except (ConfigError, OSError, ValueError) as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
@@ -133,6 +145,7 @@ def main(args: argparse.Namespace) -> int:
     if workers is None:
         workers, why = default_workers(config, args.rerun)
         logger.info("serve: %d worker process(es): %s (--workers N to choose)", workers, why)
+    _log_outputs(config, args)
     if workers > 1:
         try:
             _check_outputs(args)  # the outputs' own errors first, as with one process
@@ -171,6 +184,34 @@ def main(args: argparse.Namespace) -> int:
         print("glmav-observer serve: an output failed: see SINK FAILED above", file=sys.stderr)
         return 1
     return 0
+
+
+def _zenoh_flags(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
+    """``--zenoh PATH`` (on, with that session), ``--no-zenoh`` and ``--full-rate``."""
+    from dataclasses import replace
+
+    z = config.zenoh
+    if args.zenoh is not None:
+        z = replace(z, enabled=True, config=args.zenoh)
+    if args.no_zenoh:
+        z = replace(z, enabled=False)
+    if args.full_rate:
+        z = replace(z, full_rate=True)
+    return replace(config, zenoh=z)
+
+
+def _log_outputs(config: ServiceConfig, args: argparse.Namespace) -> None:
+    """Say at start where the estimates go; warn when they go nowhere."""
+    from glmav_observer.app_sinks import describe_outputs
+
+    outputs = describe_outputs(config, out=args.out, rerun_mode=args.rerun)
+    for line in outputs:
+        logger.info("serve: output: %s", line)
+    if not outputs:
+        logger.warning(
+            "serve: no output: the estimates are computed and published nowhere (Zenoh is "
+            "off, no --out, --rerun or --mavlink-out); only the summary at exit shows them"
+        )
 
 
 def _check_outputs(args: argparse.Namespace) -> None:

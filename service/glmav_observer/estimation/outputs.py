@@ -1,14 +1,22 @@
 """The records one vehicle's estimator publishes, built from its state, and their pacing.
 
-Per IMU-driven step: one :class:`~glmav_observer.records.VelocityRecord` per configuration
-(its lost axis dead-reckoned, with σ since that configuration's start) and one for
-``active``; per measurement a ``MeasurementRecord``; per truth sample a ``TruthRecord``; a
-``HealthRecord`` every 1/``health_rate_hz`` s of vehicle time. Each stream has its own
-sequence number.
+Per IMU-driven step, when due: one :class:`~glmav_observer.records.VelocityRecord` per
+configuration (its lost axis dead-reckoned, with σ since that configuration's start) and
+one for ``active``; per measurement a ``MeasurementRecord``; per truth sample a
+``TruthRecord``; a ``HealthRecord`` every 1/``health_rate_hz`` s of vehicle time. Each
+stream has its own sequence number, counted over the records built (consecutive numbers:
+nothing was lost).
+
+What is built is what the outputs read (:mod:`glmav_observer.reads`): a stream nobody
+reads is not built, and one read at a rate gets a record at the first step at or after
+each multiple of its period (:func:`~glmav_observer.reads.next_due_s`). Health is built at
+the lower of its read rate and ``health_rate_hz``. A decision (:meth:`RecordBuilder.
+decision`) makes ``active``, ``aided`` and ``health`` due at once.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -16,6 +24,7 @@ import numpy as np
 from glmav_observer.configurations import AIDED, CONFIGS, LOST_AXIS_OF_CONFIG, AxisName
 from glmav_observer.frames import e_exact, rotate_t_flat
 from glmav_observer.ingest.samples import TruthSample, VelocitySample
+from glmav_observer.reads import READS_ALL, VELOCITY_STREAMS, Reads, next_due_s
 from glmav_observer.records import (
     FaultEvent,
     HealthRecord,
@@ -54,20 +63,70 @@ _CONFIG_HEALTH: tuple[tuple[str, AxisName | None, str], ...] = tuple(
 class RecordBuilder:
     """Sequence numbers, record construction and health pacing of one vehicle."""
 
-    def __init__(self, sysid: int, health_rate_hz: float) -> None:
+    def __init__(self, sysid: int, health_rate_hz: float, reads: Reads = READS_ALL) -> None:
         self.sysid = sysid
-        self.health_period_s = 1.0 / health_rate_hz
+        self.health_rate_hz = health_rate_hz
         self._seq: dict[str, int] = {}
         #: the configurations' sequence numbers (CONFIGS order), counted apart: every step
         self._seq_config = [0] * len(CONFIGS)
         self.next_health_s: float | None = None
+        self.set_reads(reads)
+
+    # -- what is built, and when --------------------------------------------------------
+    def set_reads(self, reads: Reads) -> None:
+        """Build what ``reads`` says (the union of the outputs' reads) from now on."""
+        self.reads = reads
+        #: per velocity stream (VELOCITY_STREAMS order: CONFIGS, active, aided): its rate
+        self._rate_v = [reads.rate(s) for s in VELOCITY_STREAMS]
+        #: ... and the vehicle time from which its next record is due (inf: not read)
+        self._next_v = [-math.inf if r > 0.0 else math.inf for r in self._rate_v]
+        self._update_next()
+        h = min(reads.rate("health"), self.health_rate_hz)
+        self.health_on = h > 0.0
+        self.health_period_s = 1.0 / h if h > 0.0 else math.inf
+        self._health_now = False
+        self.measurement_on = reads.rate("measurement") > 0.0
+        self.truth_on = reads.rate("truth") > 0.0
+
+    def _update_next(self) -> None:
+        nv = self._next_v
+        #: the first time a configuration's or active's record is due (aided: apart)
+        self._next_min = min(nv[0], nv[1], nv[2], nv[3], nv[4])
+
+    def velocity_due(self, t: float, aided: bool) -> bool:
+        """Whether a velocity record is due at ``t`` (``aided``: the aided estimate runs):
+        one comparison when none is."""
+        return t >= self._next_min or (aided and t >= self._next_v[5])
+
+    def _due(self, i: int, t: float) -> bool:
+        """Whether velocity stream ``i``'s record is due at ``t``; if so, the next one's
+        time is set (the caller builds it)."""
+        if t < self._next_v[i]:
+            return False
+        self._next_v[i] = next_due_s(t, self._rate_v[i])
+        return True
+
+    def decision(self) -> None:
+        """A fault isolated or recovered, a switch: ``active``, ``aided`` and ``health``
+        are due at the next step, whatever their rates (decisions go out at once)."""
+        nv = self._next_v
+        for i in (4, 5):
+            if self._rate_v[i] > 0.0:
+                nv[i] = -math.inf
+        self._update_next()
+        self._health_now = self.health_on
 
     def _seqn(self, key: str) -> int:
         n = self._seq.get(key, 0) + 1
         self._seq[key] = n
         return n
 
-    def measurement(self, s: VelocitySample, euler_rad: Vec3 | None) -> MeasurementRecord:
+    def measurement(self, s: VelocitySample, euler_rad: Vec3 | None, out: list[Record]) -> None:
+        if not self.measurement_on:
+            return
+        out.append(self._measurement(s, euler_rad))
+
+    def _measurement(self, s: VelocitySample, euler_rad: Vec3 | None) -> MeasurementRecord:
         return MeasurementRecord(
             self.sysid, s.t_boot_s, s.v_ned_mps, s.position_ned_m, self._seqn("measurement"),
             euler_rad,
@@ -87,14 +146,17 @@ class RecordBuilder:
         active_body_mps: Vec3 | None = None,
         active_health: str | None = None,
     ) -> None:
-        """The records of one step: every configuration (CONFIGS order: ``body``, ``ned``
-        (tuples, put in the records as they are), ``sigma_lost_mps`` per configuration),
-        then ``active`` (its body velocity the active configuration's, or
+        """The records due at one step: every configuration (CONFIGS order: ``body``,
+        ``ned`` (tuples, put in the records as they are), ``sigma_lost_mps`` per
+        configuration), then ``active`` (its body velocity the active configuration's, or
         ``active_body_mps`` when its NED one was moved: the aiding's offset; its health
         ``active_health`` when given: ``aided``)."""
         seq = self._seq_config
         sysid = self.sysid
+        due = self._due
         for i, (c, lost, health_ok) in enumerate(_CONFIG_HEALTH):
+            if not due(i, t):
+                continue
             n = seq[i] + 1
             seq[i] = n
             b, v = body[i], ned[i]
@@ -105,6 +167,10 @@ class RecordBuilder:
                     sigma_lost_mps[i],
                 )
             )  # fmt: skip
+        if not due(4, t):
+            self._update_next()
+            return
+        self._update_next()
         a = CONFIGS.index(active)
         if active_health is not None:
             health_a = active_health
@@ -134,7 +200,10 @@ class RecordBuilder:
         out: list[Record],
     ) -> None:
         """The ``aided`` estimate while an axis is lost (:mod:`~glmav_observer.estimation.
-        aiding`): ``health`` says whether its lost axis is ``aided`` now or dead-reckoned."""
+        aiding`), when due: ``health`` says whether its lost axis is ``aided`` now or
+        dead-reckoned."""
+        if not self._due(5, t):
+            return
         v_body = rotate_t_flat(e_flat, v_ned_mps)
         out.append(
             VelocityRecord(
@@ -146,8 +215,15 @@ class RecordBuilder:
         )  # fmt: skip
 
     def health_due(self, t: float) -> bool:
-        """True (once per period) when a health record is due at ``t``."""
-        if self.next_health_s is None or t < self.next_health_s:
+        """True (once per period, and at the step after a decision) when a health record
+        is due at ``t``."""
+        if self.next_health_s is None or not self.health_on:
+            return False
+        if self._health_now:
+            self._health_now = False
+            if t < self.next_health_s:
+                return True
+        if t < self.next_health_s:
             return False
         while self.next_health_s <= t:
             self.next_health_s += self.health_period_s
@@ -171,7 +247,11 @@ class RecordBuilder:
             (rat[0], rat[1], rat[2]), axis_states, faults, rates_hz, counters, reference_fit,
         )  # fmt: skip
 
-    def truth(self, s: TruthSample) -> TruthRecord:
+    def truth(self, s: TruthSample, out: list[Record]) -> None:
+        if self.truth_on:
+            out.append(self._truth(s))
+
+    def _truth(self, s: TruthSample) -> TruthRecord:
         # the numpy E, as the truth records have always used (frames.e_flat differs by an
         # ulp in 7 % of entries: the records would change in their last digit)
         E = e_exact(np.asarray(s.euler_rad)).ravel().tolist()

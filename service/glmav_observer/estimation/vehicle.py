@@ -79,6 +79,7 @@ from glmav_observer.ingest.samples import (
     TruthSample,
     VelocitySample,
 )
+from glmav_observer.reads import READS_ALL, Reads
 from glmav_observer.records import NED_AXES, FaultEvent, Record, ReferenceFitSummary
 
 #: An ``accel_bias`` event stays in the health record's faults this long (vehicle s):
@@ -132,10 +133,12 @@ class VehicleEstimator:
         config: EstimatorConfig,
         input_counters: Callable[[], Mapping[str, int]] | None = None,
         rates_fn: Callable[[float], dict[str, float]] | None = None,
+        reads: Reads = READS_ALL,
     ) -> None:
         """``input_counters``: what the vehicle's input (ingest) counted, reported beside
         the estimator's own :attr:`counters` in health records; ``rates_fn``: its input
-        rates at a vehicle time."""
+        rates at a vehicle time; ``reads``: the records its outputs read (the rest is not
+        built: :mod:`glmav_observer.reads`)."""
         self.sysid = sysid
         self.cfg = config
         #: what the estimator counted (its own; the input's are reported by the input)
@@ -144,7 +147,7 @@ class VehicleEstimator:
         self.rates_fn = rates_fn
         self.faults: list[FaultEvent] = []
         self.switches: list[SwitchEvent] = []
-        self.out = RecordBuilder(sysid, config.health_rate_hz)
+        self.out = RecordBuilder(sysid, config.health_rate_hz, reads)
         #: kept across restarts: what the vehicle's drag is does not change with a gap
         self.aiding = (
             LostAxisAiding(
@@ -207,7 +210,7 @@ class VehicleEstimator:
         out: list[Record] = []
         if isinstance(s, TruthSample):
             # scored against the estimates by the service (evaluation.TruthScorer)
-            out.append(self.out.truth(s))
+            self.out.truth(s, out)
             return out
         if isinstance(s, AidingSample):
             self._aiding_sample(s)
@@ -245,7 +248,16 @@ class VehicleEstimator:
                 self._start_from_seed(t)
             if self.t_bank_s is not None:
                 self._check_missing(t)
-                self._velocity_records(out)
+                sel = self.sel
+                aiding_runs = self.aiding is not None and sel.lost_idx is not None
+                # the state the records' path moves at every step (a switch's jump, the
+                # active estimate's aided offset), or a record due: else nothing is built
+                if (
+                    self.out.velocity_due(t, aiding_runs)
+                    or sel.pending is not None
+                    or (aiding_runs and self.cfg.aero_active)
+                ):
+                    self._velocity_records(out)
                 if self.out.health_due(t):
                     out.append(self._health_record(t))
         elif isinstance(s, VelocitySample):
@@ -387,7 +399,7 @@ class VehicleEstimator:
     def _measurement(self, s: VelocitySample, out: list[Record]) -> None:
         t = s.t_boot_s
         inputs = self.inputs
-        out.append(self.out.measurement(s, inputs.euler_rad))
+        self.out.measurement(s, inputs.euler_rad, out)
         if self.t_bank_s is None and (self._seed is not None or not self._init_from(s)):
             return  # (a seed starts the bank at the next attitude or IMU sample)
         faulty_before = set(self.fdi.faulty_axes())
@@ -478,6 +490,7 @@ class VehicleEstimator:
             self.counters["fdi_reference_offsets"] = self.fdi.reference_drifts
         if self.fdi.ramp_withdrawals:  # residual isolations withdrawn on a ramp (no event)
             self.counters["fdi_ramp_withdrawals"] = self.fdi.ramp_withdrawals
+        n_faults = len(self.faults)
         changes = self.fdi.accel_changes
         while self._n_accel_changes < len(changes):
             ch = changes[self._n_accel_changes]
@@ -495,6 +508,8 @@ class VehicleEstimator:
                 assert ev is not None
                 self.faults.append(ev)
                 self.counters[f"fault_{ev.kind}_{ev.axis}"] += 1
+        if len(self.faults) != n_faults or set(faulty) != faulty_before:
+            self.out.decision()  # published at once, whatever the records' rates
         wanted = CONFIG_WITHOUT_AXIS[faulty[0]] if faulty else "full"
         if wanted == self.sel.config:
             return
@@ -514,6 +529,7 @@ class VehicleEstimator:
             else:
                 self.aiding.start(t, lost_idx)
         self.switches.append(switch)
+        self.out.decision()
 
     # ------------------------------------------------------------------ records
     def _velocity_records(self, out: list[Record]) -> None:

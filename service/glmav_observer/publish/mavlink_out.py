@@ -37,6 +37,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from glmav_observer.config import GCS_COMPONENT_IDS, MavlinkOutSettings
 from glmav_observer.ingest.links import Link
+from glmav_observer.reads import EVERY, Reads, next_due_s
 from glmav_observer.records import CONFIGS, HealthRecord, Record, VelocityRecord
 
 log = logging.getLogger(__name__)
@@ -147,6 +148,15 @@ class MavlinkOutSink:
             self._stop.wait(HEARTBEAT_PERIOD_S)
 
     # ------------------------------------------------------------------- sink
+    @property
+    def reads(self) -> Reads:
+        """The active estimate at the output's rate (ODOMETRY, VISION_SPEED_ESTIMATE) and
+        every health record (its events become STATUSTEXT at once)."""
+        s = self.settings
+        return Reads(
+            {"active": s.rate_hz if s.odometry or s.vision_speed_estimate else 0.0, "health": EVERY}
+        )
+
     def write(self, record: Record) -> None:
         if isinstance(record, VelocityRecord):
             if record.config == "active":
@@ -173,10 +183,9 @@ class MavlinkOutSink:
             v.seen = True
             if r.t_boot_s < v.next_estimate_s - 1e-6:  # 1 us: the grid's rounding
                 return
-            # the next slot on the rate's grid (no drift, no burst after a gap)
-            period = 1.0 / s.rate_hz
-            late = r.t_boot_s - v.next_estimate_s > period  # the first, or after a gap
-            v.next_estimate_s = (r.t_boot_s if late else v.next_estimate_s) + period
+            # the next slot on the rate's grid (no drift, no burst after a gap): the rule
+            # the estimator builds the records by, so that it builds only these
+            v.next_estimate_s = next_due_s(r.t_boot_s, s.rate_hz)
             var = [s.sigma_measured_mps**2] * 3
             if r.lost_axis is not None:
                 sig = r.sigma_lost_mps

@@ -57,6 +57,7 @@ from glmav_observer.publish.zenoh_keys import (
     route,
     state_key,
 )
+from glmav_observer.reads import READS_LIVE_DEFAULT, Reads
 from glmav_observer.records import (
     CONFIGS,
     Record,
@@ -102,8 +103,13 @@ class ZenohSink:
         effective_config: Mapping[str, Any],
         vehicle_timeout_s: float = 5.0,
         check_unique: bool = True,
+        reads: Reads = READS_LIVE_DEFAULT,
     ) -> None:
         import zenoh
+
+        #: the record streams and rates this sink publishes; the service builds no more
+        #: for it (glmav_observer.reads)
+        self.reads = reads
 
         self._zenoh = zenoh
         self._session = session
@@ -143,11 +149,12 @@ class ZenohSink:
         )
         self._watchdog.start()
         log.info(
-            "zenoh sink open: prefix %s, service %s, config %s, zid %s",
+            "zenoh sink open: prefix %s, service %s, config %s, zid %s; publishing %s",
             self.prefix,
             self.service_id,
             config_name or EMBEDDED_DEFAULT_NAME,
             session.zid(),
+            reads.describe(),
         )
 
     def _check_unique(self) -> None:
@@ -295,6 +302,7 @@ class ZenohSink:
             "prefix": self.prefix,
             "zenoh_config": self.config_name,
             "decimation": dict(self.decimation),
+            "rates_hz": self.reads.to_dict(),
             "config": json.loads(encode_json(self._effective_config)),
         }
 
@@ -384,6 +392,7 @@ def open_zenoh_sink(
     effective_config: Mapping[str, Any],
     vehicle_timeout_s: float = 5.0,
     check_unique: bool = True,
+    reads: Reads = READS_LIVE_DEFAULT,
 ) -> ZenohSink:
     """Open the service's Zenoh session and sink (docs/zenoh.md).
 
@@ -391,6 +400,8 @@ def open_zenoh_sink(
     ``decimation``: per key kind (``KINDS``), publish every Nth record (0 = off).
     ``check_unique``: refuse to start when a namesake holds ``@alive/<service-id>``
     (False for the workers after the first of one ``serve --workers N``: they share the id).
+    ``reads``: the record streams and rates published (``[zenoh.rates]``; default: the
+    live defaults of :mod:`glmav_observer.reads`).
     Raises :class:`ZenohConfigError` (a ``ValueError``) with a self-contained message.
     """
     check_prefix(prefix)
@@ -408,6 +419,7 @@ def open_zenoh_sink(
             effective_config=effective_config,
             vehicle_timeout_s=vehicle_timeout_s,
             check_unique=check_unique,
+            reads=reads,
         )
     except BaseException:
         session.close()  # type: ignore[no-untyped-call]

@@ -8,6 +8,7 @@ import pytest
 
 from glmav_observer.cli import main
 from glmav_observer.config import ConfigError, load_config, parse_config
+from glmav_observer.reads import READS_LIVE_DEFAULT
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -21,7 +22,8 @@ def test_shipped_file_documents_the_defaults() -> None:
     assert shipped.rerun == defaults.rerun
     assert shipped.mavlink_out == defaults.mavlink_out
     assert shipped.mavlink_out.enabled is False  # MAVLink output: opt-in
-    assert shipped.zenoh.enabled is False  # serve: Zenoh off unless asked
+    assert shipped.zenoh.enabled is True  # serve publishes on Zenoh unless told not to (#28)
+    assert shipped.zenoh.reads() == READS_LIVE_DEFAULT  # built only at the consumers' rates
     assert shipped.rerun.mode == "off"
 
 
@@ -97,6 +99,10 @@ def test_cli_exit_code_2_on_bad_config(tmp_path: Path, capsys: pytest.CaptureFix
         ({"estimation": {"gamma_full": 1e12}}, "estimation.gamma_full", r"\(0, 1000\]"),
         ({"fdi": {"k_isolate": 10**9}}, "fdi.k_isolate", r"\[1, 10000\]"),
         ({"zenoh": {"decimation": {"health": -1}}}, "zenoh.decimation.health", r"\[0, 10000\]"),
+        # issue 28: the rates the Zenoh sink reads (and the estimators build)
+        ({"zenoh": {"rates": {"active": -5.0}}}, "zenoh.rates.active", "number of Hz >= 0.01"),
+        ({"zenoh": {"rates": {"full": "all"}}}, "zenoh.rates.full", r"\"every\""),
+        ({"zenoh": {"rates": {"velocity": 10.0}}}, "zenoh.rates.velocity", "unknown"),
     ],
 )
 def test_every_value_has_a_range(doc: dict, key: str, reason: str) -> None:
@@ -116,3 +122,13 @@ def test_every_generic_field_has_a_range() -> None:
         "LOCAL_POSITION_NED": 5.0,
         "SIM_STATE": 0.0,
     }
+
+
+def test_zenoh_rates_read_every_and_numbers_and_full_rate_overrides() -> None:
+    cfg = parse_config({"zenoh": {"rates": {"active": "every", "c1": 0, "health": 2.5}}})
+    reads = cfg.zenoh.reads()
+    assert reads.rate("active") == float("inf") and reads.rate("c1") == 0.0
+    assert reads.rate("health") == 2.5 and reads.rate("full") == 10.0  # the default kept
+    assert cfg.effective()["zenoh"]["rates_hz"]["active"] == "every"  # JSON has no inf
+    full = parse_config({"zenoh": {"full_rate": True, "rates": {"c1": 0}}})
+    assert all(r == float("inf") for r in full.zenoh.reads().rates_hz.values())
