@@ -21,22 +21,26 @@ import collections
 import copy
 import lzma
 import math
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from glmav_observer.records import (
     NED_AXES,
+    FaultEvent,
     MeasurementRecord,
     Record,
     ReferenceFitSummary,
     TruthRecord,
     VelocityRecord,
 )
+
+if TYPE_CHECKING:
+    from glmav_observer.estimation.selection import SwitchEvent
 
 FaultKindName = Literal["bias", "freeze", "nan", "noise"]
 Vec3 = tuple[float, float, float]
@@ -417,6 +421,10 @@ class LogResult:
     skip_s: float
     #: what the FDI's reference fit had learnt at the end of the log (None: never fitted)
     reference_fit: ReferenceFitSummary | None = None
+    #: the estimator's own events, whole (``VehicleEstimator.faults`` / ``.switches``:
+    #: what the service's summary publishes with ``to_dict()``); the golden replays keep them
+    fault_events: list[FaultEvent] = field(default_factory=list)
+    switch_events: list[SwitchEvent] = field(default_factory=list)
 
     def errors(self, config: str) -> tuple[FloatArray, FloatArray]:
         return self.collector.errors(config, self.skip_s)
@@ -467,6 +475,7 @@ def replay_cases(
     *,
     seed: int = 0,
     sysid: int | None = None,
+    collector_type: Callable[[], RecordCollector] = RecordCollector,
 ) -> Iterator[LogResult]:
     """:func:`replay` of one log once per case (a set of faults), the same results as
     separate replays at a fraction of the cost: the log is decoded once, and the messages
@@ -476,6 +485,8 @@ def replay_cases(
     on are copied before injection, so no case sees another's faults;
     tests/integration/glmav_observer/test_ardupilot_corpus.py asserts equality with
     :func:`replay`. Results come one case at a time (each holds its own series).
+    ``collector_type`` makes the sink every case's records reach (a subclass can keep more
+    than the series: glmav_testkit.golden keeps the whole records, decimated).
     """
     from glmav_observer.app import Service
     from glmav_observer.config import ServiceConfig
@@ -495,7 +506,7 @@ def replay_cases(
         ),
         len(recs),
     )
-    base = Service(cfg, [RecordCollector()])
+    base = Service(cfg, [collector_type()])
     tracker = FaultInjector((), seed)  # no faults: it only follows the last good values
     for rec in recs[:split]:
         tracker.apply(rec.msg)
@@ -539,6 +550,8 @@ def _result(
         collector=collector,
         skip_s=skip,
         reference_fit=est.reference_fit_summary(),
+        fault_events=list(est.faults),
+        switch_events=list(est.switches),
     )
     for c in collector.series:
         result.rmse_ned_mps[c] = rmse(result.errors(c)[1])
