@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any
 
 from glmav_observer.configurations import AIDED, CONFIGS
@@ -75,11 +74,8 @@ class Reads:
             reason = rate_reason(rate)
             if reason is not None:
                 raise ValueError(f"read rate of {stream}: {reason}, got {rate!r}")
-        object.__setattr__(
-            self,
-            "rates_hz",
-            MappingProxyType({s: float(self.rates_hz.get(s, 0.0)) for s in STREAMS}),
-        )
+        # every stream, in STREAMS order (a plain dict: a service's state is deep-copied)
+        object.__setattr__(self, "rates_hz", {s: float(self.rates_hz.get(s, 0.0)) for s in STREAMS})
 
     def rate(self, stream: str) -> float:
         return self.rates_hz[stream]
