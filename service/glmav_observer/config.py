@@ -31,9 +31,11 @@ from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
 from glmav_observer.publish.schema import (
     DEFAULT_DECIMATION,
+    DEFAULT_ENCODING,
     DEFAULT_PREFIX,
     KINDS,
     decimation_reason,
+    encoding_reason,
 )
 from glmav_toml import Check, ConfigError, TableReader, load_toml, one_of, within
 
@@ -69,6 +71,7 @@ class ZenohSettings:
     config: str = ""
     prefix: str = DEFAULT_PREFIX
     decimation: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_DECIMATION))
+    encoding: str = DEFAULT_ENCODING  # publish/schema.py ENCODINGS: "json" | "msgpack"
 
 
 @dataclass(frozen=True, slots=True)
@@ -387,6 +390,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         enabled=zr.get("enabled", bool, d.zenoh.enabled),
         config=zr.get("config", str, d.zenoh.config),
         prefix=zr.get("prefix", str, d.zenoh.prefix, _key_prefix),
+        encoding=zr.get("encoding", str, d.zenoh.encoding, encoding_reason),
         decimation={k: dec_r.get(k, int, DEFAULT_DECIMATION[k], decimation_reason) for k in KINDS},
     )
     dec_r.done()
