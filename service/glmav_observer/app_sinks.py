@@ -109,6 +109,7 @@ def open_sinks(
                     zcfg,
                     prefix=config.zenoh.prefix,
                     decimation=config.zenoh.decimation,
+                    encoding=config.zenoh.encoding,
                     service_id=config.service_id,
                     effective_config=config.effective(),
                     check_unique=zenoh_check_unique,

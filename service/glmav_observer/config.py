@@ -31,9 +31,11 @@ from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
 from glmav_observer.publish.schema import (
     DEFAULT_DECIMATION,
+    DEFAULT_ENCODING,
     DEFAULT_PREFIX,
     KINDS,
     decimation_reason,
+    encoding_reason,
 )
 from glmav_observer.reads import (
     EVERY,
@@ -79,6 +81,7 @@ class ZenohSettings:
     config: str = ""
     prefix: str = DEFAULT_PREFIX
     decimation: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_DECIMATION))
+    encoding: str = DEFAULT_ENCODING  # publish/schema.py ENCODINGS: "json" | "msgpack"
     #: per record stream, the rate published (Hz of vehicle time; glmav_observer.reads)
     rates_hz: Mapping[str, float] = field(default_factory=lambda: dict(LIVE_DEFAULT_RATES_HZ))
     #: every record of every stream, whatever ``rates_hz`` says (``serve --full-rate``)
@@ -408,6 +411,7 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         enabled=zr.get("enabled", bool, d.zenoh.enabled),
         config=zr.get("config", str, d.zenoh.config),
         prefix=zr.get("prefix", str, d.zenoh.prefix, _key_prefix),
+        encoding=zr.get("encoding", str, d.zenoh.encoding, encoding_reason),
         decimation={k: dec_r.get(k, int, DEFAULT_DECIMATION[k], decimation_reason) for k in KINDS},
         rates_hz={k: _read_rate(rates_r, k, d.zenoh.rates_hz[k]) for k in STREAMS},
         full_rate=zr.get("full_rate", bool, d.zenoh.full_rate),

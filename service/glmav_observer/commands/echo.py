@@ -1,6 +1,8 @@
 """``glmav-observer echo [KEYEXPR]``: print what the service publishes on Zenoh.
 
-Subscribes to KEYEXPR (default ``glmav/**``) and prints each sample: ``--format pretty``
+Subscribes to KEYEXPR (default ``glmav/**``) and prints each sample, decoded by its
+encoding (``application/json``, or ``application/msgpack`` from a service with ``[zenoh]
+encoding = "msgpack"``; anything else as text): ``--format pretty``
 (the default: the key, then the indented JSON) or ``--format jsonl`` (one object per
 line ``{"key": ..., "encoding": ..., "value": ...}``, for jq and loggers). ``--query``
 sends one query instead (e.g. ``glmav/*/state`` or ``glmav/@config/*``) and prints the
@@ -31,6 +33,7 @@ from glmav_observer.publish.zenoh_config import (
     load_zenoh_config,
     open_session,
 )
+from glmav_observer.publish.zenoh_keys import decode_payload
 
 DEFAULT_KEYEXPR = "glmav/**"
 DEFAULT_ALIVE_KEYEXPR = "glmav/@alive/**"
@@ -62,10 +65,11 @@ def _session_config(args: argparse.Namespace) -> tuple[Any, str]:
     return config, name
 
 
-def _decode(payload: bytes) -> Any:
+def _decode(payload: bytes, encoding: str) -> Any:
+    """The payload decoded by its sample's encoding (JSON, MessagePack), else as text."""
     try:
-        return json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+        return decode_payload(payload, encoding)
+    except ValueError:  # also UnicodeDecodeError and MessagePack's decode errors
         return payload.decode("utf-8", errors="replace")
 
 
@@ -77,7 +81,7 @@ class _Printer:
         self.invalid = 0
 
     def show(self, key: str, encoding: str, payload: bytes, mark: str = "") -> None:
-        value = _decode(payload) if payload else None
+        value = _decode(payload, encoding) if payload else None
         self.count += 1
         if self.check and value is not None:
             errors = validate(value)

@@ -54,6 +54,7 @@ from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.seed import EstimatorSeed
 from glmav_observer.fleet.handover import HandoverError, seed_from_state, state_time_s
 from glmav_observer.publish.sink import Sink
+from glmav_observer.publish.zenoh_keys import decode_payload
 
 if TYPE_CHECKING:
     import zenoh
@@ -116,7 +117,7 @@ class ClaimManager:
         self._unclaimed_turns: dict[int, int] = {}
         self._members: set[str] = {self.zid}
         #: last health record published by anyone: sysid -> (monotonic s, payload bytes)
-        self._last_health: dict[int, tuple[float, bytes]] = {}
+        self._last_health: dict[int, tuple[float, bytes, str]] = {}
         #: newest state queryable reply per vehicle not owned: sysid -> (monotonic s, payload)
         self._last_state: dict[int, tuple[float, dict[str, Any]]] = {}
         self.state_replies = 0
@@ -165,7 +166,11 @@ class ClaimManager:
             sysid = int(str(sample.key_expr).split("/")[-2])
         except (ValueError, IndexError):
             return
-        self._last_health[sysid] = (time.monotonic(), sample.payload.to_bytes())
+        self._last_health[sysid] = (
+            time.monotonic(),
+            sample.payload.to_bytes(),
+            str(sample.encoding),
+        )
 
     def _on_state_reply(self, reply: zenoh.Reply) -> None:
         sample = reply.ok
@@ -307,10 +312,10 @@ class ClaimManager:
         last = self._last_health.get(sysid)
         event: dict[str, Any] = {"event": "claimed", "sysid": sysid, "t": time.monotonic()}
         if last is not None:
-            t_seen, payload = last
+            t_seen, payload, encoding = last
             event["gap_s"] = event["t"] - t_seen
-            try:
-                event["last_published"] = json.loads(payload)
+            try:  # JSON or MessagePack ([zenoh] encoding of the publishing service)
+                event["last_published"] = decode_payload(payload, encoding)
             except ValueError:
                 event["last_published"] = None
             logger.info(

@@ -41,6 +41,21 @@ DEFAULT_DECIMATION: dict[str, int] = dict.fromkeys(KINDS, 1)
 #: Largest decimation (every Nth record): far above any useful value.
 MAX_DECIMATION = 10_000
 
+#: The wire encodings of the record keys (``[zenoh] encoding``, docs/zenoh.md "Payloads"),
+#: each with the Zenoh encoding its publishers declare: the same ``to_dict()`` +
+#: ``service_id`` object as JSON text (the default: any client reads it with its
+#: standard library) or as a MessagePack map (smaller: binary floats). Queryables always
+#: answer in JSON.
+ENCODINGS: dict[str, str] = {"json": "application/json", "msgpack": "application/msgpack"}
+DEFAULT_ENCODING = "json"
+
+
+def encoding_reason(name: object) -> str | None:
+    """None if ``name`` is one of :data:`ENCODINGS`, else the reason."""
+    if name in ENCODINGS:
+        return None
+    return f"must be one of {', '.join(repr(e) for e in ENCODINGS)} (the payloads' wire encoding)"
+
 
 def decimation_reason(every: object) -> str | None:
     """None if ``every`` is a valid decimation of one kind, else the reason."""

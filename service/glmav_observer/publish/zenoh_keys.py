@@ -1,18 +1,24 @@
 """What a Zenoh subscriber sees: the key expressions (checked prefixes and service ids,
-one key per record kind, :func:`route`) and the payloads (compact JSON, NaN as null). The
-key table is in :mod:`glmav_observer.publish.zenoh_sink`.
+one key per record kind, :func:`route`) and the payloads (``to_dict()`` + ``service_id``
+as compact JSON with NaN as null, or as MessagePack: :func:`payload_encoder`). The key
+table is in :mod:`glmav_observer.publish.zenoh_sink`.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import re
 import socket
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
+import orjson
+import ormsgpack
+
+from glmav_observer.publish.schema import DEFAULT_ENCODING, ENCODINGS
 from glmav_observer.records import (
     HealthRecord,
     MeasurementRecord,
@@ -133,10 +139,133 @@ def encode_json(obj: Mapping[str, Any]) -> bytes:
         return json.dumps(_finite(obj), separators=(",", ":"), default=str).encode()
 
 
-def encode_payload(record: Record, service_id: str | None = None) -> bytes:
+def encode_payload(
+    record: Record, service_id: str | None = None, encoding: str = DEFAULT_ENCODING
+) -> bytes:
     """The payload of one record: ``record.to_dict()`` (with ``service_id`` when given)
-    as compact JSON."""
-    d = record.to_dict()
-    if service_id is not None:
-        d["service_id"] = service_id
-    return encode_json(d)
+    in ``encoding`` (compact JSON by default), through :func:`payload_encoder` (made once
+    per encoding and service id)."""
+    return _cached_encoder(encoding, service_id)(record)
+
+
+#: A record's payload: what :func:`payload_encoder` returns.
+Encoder = Callable[[Record], bytes]
+
+_NUMPY = orjson.OPT_SERIALIZE_NUMPY  # numpy scalars and arrays (NaN -> null) as numbers
+_MSGPACK_NUMPY = ormsgpack.OPT_SERIALIZE_NUMPY
+
+
+def payload_encoder(encoding: str, service_id: str | None = None) -> Encoder:
+    """The encoder of one service's payloads: ``record.to_dict()`` plus ``service_id``
+    (when given) as ``encoding`` (:data:`~glmav_observer.publish.schema.ENCODINGS`).
+
+    JSON: orjson's compact output (NaN and infinities as null, as the stdlib path of
+    :func:`encode_json` gives; floats in their shortest round-trip form), so a reader's
+    ``json.loads`` gets exactly ``to_dict()``. A :class:`VelocityRecord`, the bulk of
+    the traffic, skips ``to_dict()``: its object is built straight from the tuple's
+    fields (its vectors as arrays, which orjson writes with NaN as null as ``_vec``
+    does). MessagePack: the same map (binary float64s); a velocity vector holding a
+    non-finite value goes through ``to_dict()`` (None there, as in JSON). Anything the
+    fast paths refuse (a number beyond 64 bits, an unknown type) falls back to the
+    stdlib's rules (:func:`encode_json`, non-serialisable values as strings).
+    """
+    if encoding not in ENCODINGS:
+        raise ValueError(f"unknown payload encoding {encoding!r} (one of {', '.join(ENCODINGS)})")
+    extra: dict[str, str] = {} if service_id is None else {"service_id": service_id}
+
+    def slow_dict(record: Record) -> dict[str, Any]:
+        d = record.to_dict()
+        d.update(extra)
+        return d
+
+    if encoding == "msgpack":
+        packb = ormsgpack.packb
+        isfinite = math.isfinite
+
+        def encode_msgpack(record: Record) -> bytes:
+            if type(record) is VelocityRecord:
+                (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+                try:  # (math.isfinite: numpy scalars' own arithmetic would warn on inf - inf)
+                    finite = (
+                        isfinite(b[0]) and isfinite(b[1]) and isfinite(b[2])
+                        and isfinite(v[0]) and isfinite(v[1]) and isfinite(v[2])
+                    )  # fmt: skip
+                except TypeError:
+                    finite = False
+                if finite:
+                    d = {
+                        "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
+                        "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost, "health": health,
+                        "seq": seq, "source_config": src, "sigma_lost_mps": sigma, **extra,
+                    }  # fmt: skip
+                else:
+                    d = slow_dict(record)
+            else:
+                d = slow_dict(record)
+            try:
+                return packb(d, option=_MSGPACK_NUMPY)
+            except (ormsgpack.MsgpackEncodeError, TypeError):
+                return packb(slow_dict(record), option=_MSGPACK_NUMPY, default=str)
+
+        return encode_msgpack
+
+    dumps = orjson.dumps
+    if service_id is None:
+
+        def encode_json_fast(record: Record) -> bytes:
+            try:
+                if type(record) is VelocityRecord:
+                    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+                    return dumps(
+                        {
+                            "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
+                            "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost,
+                            "health": health, "seq": seq, "source_config": src,
+                            "sigma_lost_mps": sigma,
+                        },
+                        option=_NUMPY,
+                    )  # fmt: skip
+                return dumps(record.to_dict(), option=_NUMPY)
+            except orjson.JSONEncodeError:
+                return encode_json(record.to_dict())
+
+        return encode_json_fast
+    sid = service_id
+
+    def encode_json_fast_sid(record: Record) -> bytes:
+        # the same as above with "service_id" last (a copy rather than a branch per record)
+        try:
+            if type(record) is VelocityRecord:
+                (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+                return dumps(
+                    {
+                        "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
+                        "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost,
+                        "health": health, "seq": seq, "source_config": src,
+                        "sigma_lost_mps": sigma, "service_id": sid,
+                    },
+                    option=_NUMPY,
+                )  # fmt: skip
+            return dumps(slow_dict(record), option=_NUMPY)
+        except orjson.JSONEncodeError:
+            return encode_json(slow_dict(record))
+
+    return encode_json_fast_sid
+
+
+_cached_encoder = functools.lru_cache(maxsize=64)(payload_encoder)
+
+
+def zenoh_encoding_name(encoding: str) -> str:
+    """The Zenoh encoding (a MIME type) the publishers of ``encoding`` declare."""
+    return ENCODINGS[encoding]
+
+
+def decode_payload(payload: bytes, zenoh_encoding: str = "application/json") -> Any:
+    """A sample's payload decoded by its Zenoh encoding (``str(sample.encoding)``):
+    MessagePack for ``application/msgpack``, JSON otherwise. Raises ``ValueError``
+    (``UnicodeDecodeError``, ``json.JSONDecodeError``, ``ormsgpack.MsgpackDecodeError``
+    are all ValueErrors) when the payload is not what its encoding says."""
+    if zenoh_encoding.split(";", 1)[0] == ENCODINGS["msgpack"]:
+        return ormsgpack.unpackb(payload)
+    return json.loads(payload)

@@ -11,8 +11,9 @@ the returned :class:`ZenohSink`. Keys, with ``<prefix>`` (default ``glmav``):
   ``<prefix>/@alive/<service-id>/<sysid>`` while that vehicle's records keep coming.
 
 Payloads are ``record.to_dict()`` plus ``service_id`` as compact JSON (encoding
-``application/json``; the ``schema`` field names the layout, see
-:mod:`glmav_observer.publish.schema`). Two services on one Zenoh network publish on the
+``application/json``), or as MessagePack (``application/msgpack``) with ``encoding=
+"msgpack"`` (``[zenoh] encoding``); the ``schema`` field names the layout, see
+:mod:`glmav_observer.publish.schema`. Query replies are always JSON. Two services on one Zenoh network publish on the
 same ``<prefix>/<sysid>/...`` keys when they estimate the same vehicle; ``service_id``
 tells their samples apart. A service refuses to start (:class:`DuplicateServiceError`)
 when another one already holds the liveliness token of its id.
@@ -25,20 +26,23 @@ any connected node a put is a local no-op. A lost router is reconnected by Zenoh
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
 from glmav_observer.configurations import AIDED
 from glmav_observer.publish.schema import (
     CONFIG_SCHEMA,
+    DEFAULT_ENCODING,
     DEFAULT_PREFIX,
     KINDS,
     STATE_SCHEMA,
+    encoding_reason,
 )
 from glmav_observer.publish.zenoh_config import (
     EMBEDDED_DEFAULT_NAME,
@@ -53,14 +57,16 @@ from glmav_observer.publish.zenoh_keys import (
     check_service_id,
     config_key,
     encode_json,
-    encode_payload,
+    payload_encoder,
     route,
     state_key,
+    zenoh_encoding_name,
 )
 from glmav_observer.reads import READS_LIVE_DEFAULT, Reads
 from glmav_observer.records import (
     CONFIGS,
     Record,
+    VelocityRecord,
 )
 
 if TYPE_CHECKING:
@@ -79,6 +85,72 @@ class DuplicateServiceError(ZenohConfigError):
     """Another service with the same id is already on the Zenoh network."""
 
 
+def check_encoding(encoding: str) -> str:
+    """``encoding`` if it is one of ``ENCODINGS`` (publish/schema.py), else a config error."""
+    reason = encoding_reason(encoding)
+    if reason is not None:
+        raise ZenohConfigError(f"zenoh encoding {encoding!r}: {reason}")
+    return encoding
+
+
+_monotonic = time.monotonic
+
+
+def _count_of(counter: Iterator[int]) -> int:
+    """The next value of an ``itertools.count`` without taking it (its repr: ``count(N)``)."""
+    return int(repr(counter)[6:-1])
+
+
+class _Vehicle:
+    """One vehicle's shared state: its latest record per slot (read by the state
+    queryable), when it was last heard, whether its liveliness token is declared."""
+
+    __slots__ = ("alive", "last_seen", "slots", "sysid")
+
+    def __init__(self, sysid: int) -> None:
+        self.sysid = sysid
+        self.slots: dict[str, Record] = {}
+        self.last_seen = 0.0
+        self.alive = False
+
+
+class _Route:
+    """Everything ``write`` needs for one key, computed at its first record: the kind,
+    the key string, the state slot, the decimation, the encoder and (at its first
+    published record) the publisher. ``count`` numbers the records written (an
+    ``itertools.count``: taking a number is atomic, so writers on several threads need no
+    lock); ``failed`` the selected records that did not reach Zenoh."""
+
+    __slots__ = (
+        "count",
+        "encode",
+        "every",
+        "failed",
+        "key",
+        "kind",
+        "publisher",
+        "slot",
+        "vehicle",
+    )
+
+    def __init__(self, kind: str, key: str, slot: str, every: int, vehicle: _Vehicle) -> None:
+        self.kind = kind
+        self.key = key
+        self.slot = slot
+        self.every = every
+        self.vehicle = vehicle
+        self.count = itertools.count()
+        self.failed = 0
+        self.publisher: zenoh.Publisher | None = None
+        self.encode: Any = None
+
+    def selected(self) -> tuple[int, int]:
+        """(records written, of which selected by the decimation) so far."""
+        n = _count_of(self.count)
+        every = self.every
+        return n, (0 if every == 0 else -(-n // every))
+
+
 # ---------------------------------------------------------------------------------------
 # The sink
 # ---------------------------------------------------------------------------------------
@@ -88,8 +160,10 @@ class ZenohSink:
     """Publishes records, answers state and config queries, holds liveliness tokens.
 
     Construct with :func:`open_zenoh_sink`. ``write`` is called from the estimation
-    thread; queries are answered from Zenoh's threads (the latest records are shared
-    under a lock held for a few dict operations).
+    thread (one per link); queries are answered from Zenoh's threads. Each key's route
+    (key string, decimation, encoder, publisher) is built at its first record, under the
+    lock, and then only read: ``write`` takes no lock on its path (the latest records
+    are one dict store per record, the counters an ``itertools.count`` per key).
     """
 
     def __init__(
@@ -99,6 +173,7 @@ class ZenohSink:
         config_name: str | None,
         prefix: str = DEFAULT_PREFIX,
         decimation: Mapping[str, int] | None = None,
+        encoding: str = DEFAULT_ENCODING,
         service_id: str,
         effective_config: Mapping[str, Any],
         vehicle_timeout_s: float = 5.0,
@@ -116,18 +191,19 @@ class ZenohSink:
         self.prefix = check_prefix(prefix)
         self.service_id = check_service_id(service_id)
         self.decimation = check_decimation(decimation)
+        self.encoding = check_encoding(encoding)
+        self._zenoh_encoding = zenoh.Encoding(zenoh_encoding_name(encoding))
+        self._encode = payload_encoder(encoding, self.service_id)
         self.config_name = config_name
         self.vehicle_timeout_s = vehicle_timeout_s
         self._effective_config = dict(effective_config)
         self._lock = threading.Lock()
         self._closed = False
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._write_count: dict[str, int] = {}
-        self._latest: dict[int, dict[str, Record]] = {}
-        self._last_seen: dict[int, float] = {}
+        #: sysid -> (config name for velocity records, else the record class) -> route
+        self._routes: dict[int, dict[object, _Route]] = {}
+        self._vehicles: dict[int, _Vehicle] = {}
         self._vehicle_tokens: dict[int, zenoh.LivelinessToken] = {}
-        self.published: dict[str, int] = dict.fromkeys(KINDS, 0)
-        self.decimated: dict[str, int] = dict.fromkeys(KINDS, 0)
         self.errors = 0
         self.after_close = 0
         self.queries_answered = 0
@@ -180,61 +256,114 @@ class ZenohSink:
         if self._closed:
             self.after_close += 1
             return
-        kind, key, slot = route(self.prefix, record)
-        sysid = record.sysid
-        now = time.monotonic()
-        every = self.decimation[kind]
-        with self._lock:  # write() may be called from several threads (one per link)
-            slots = self._latest.get(sysid)
-            if slots is None:
-                slots = self._latest[sysid] = {}
-            slots[slot] = record
-            self._last_seen[sysid] = now
-            if sysid not in self._vehicle_tokens:
-                self._declare_vehicle_token(sysid)
-            n = self._write_count.get(key, 0)
-            self._write_count[key] = n + 1
-            if every == 0 or n % every:
-                self.decimated[kind] += 1
-                return
-            publisher = self._publishers.get(key)
+        routes = self._routes.get(record.sysid)
+        route = None
+        if routes is not None:
+            route = routes.get(record.config if type(record) is VelocityRecord else type(record))
+        if route is None:
+            route = self._add_route(record)
+        vehicle = route.vehicle
+        vehicle.slots[route.slot] = record  # one dict store: atomic for the state queryable
+        vehicle.last_seen = _monotonic()
+        if not vehicle.alive:
+            self._revive(vehicle)
+        n = next(route.count)
+        every = route.every
+        if every != 1 and (every == 0 or n % every):
+            return  # decimated (route.count counts it)
+        publisher = route.publisher
+        if publisher is None:
+            publisher = self._declare_publisher(route)
             if publisher is None:
-                publisher = self._declare_publisher(key, kind)
-                if publisher is None:
-                    return
-        # outside the lock: encoding and the hand-over to Zenoh (non-blocking, DROP)
+                return
+        # the hand-over to Zenoh: non-blocking (congestion control DROP)
         try:
-            publisher.put(encode_payload(record, self.service_id))
+            publisher.put(route.encode(record))
         except self._zenoh.ZError as exc:
             with self._lock:
+                route.failed += 1
                 self.errors += 1
             if self.errors == 1 or self.errors % 1000 == 0:
-                log.warning("zenoh put on %s failed (%d so far): %s", key, self.errors, exc)
-            return
-        with self._lock:
-            self.published[kind] += 1
+                log.warning("zenoh put on %s failed (%d so far): %s", route.key, self.errors, exc)
 
-    def _declare_publisher(self, key: str, kind: str) -> zenoh.Publisher | None:
+    def _add_route(self, record: Record) -> _Route:
+        """The route of ``record``'s key, made at its first record (raises ``TypeError``
+        for anything that is not a record, as :func:`route` does)."""
+        kind, key, slot = route(self.prefix, record)
+        sysid = record.sysid
+        sub = record.config if type(record) is VelocityRecord else type(record)
+        with self._lock:
+            routes = self._routes.get(sysid)
+            if routes is None:
+                routes = self._routes[sysid] = {}
+            existing = routes.get(sub)
+            if existing is not None:  # another writer thread made it meanwhile
+                return existing
+            vehicle = self._vehicles.get(sysid)
+            if vehicle is None:
+                vehicle = self._vehicles[sysid] = _Vehicle(sysid)
+            new = _Route(kind, key, slot, self.decimation[kind], vehicle)
+            new.encode = self._encode
+            routes[sub] = new
+            return new
+
+    def _revive(self, vehicle: _Vehicle) -> None:
+        """Declare the liveliness token of a vehicle heard (again)."""
+        with self._lock:
+            if not vehicle.alive and not self._closed:
+                self._declare_vehicle_token(vehicle.sysid)
+                vehicle.alive = vehicle.sysid in self._vehicle_tokens  # else: the next record
+
+    def _declare_publisher(self, route: _Route) -> zenoh.Publisher | None:
         zenoh = self._zenoh
-        try:
-            publisher = self._session.declare_publisher(
-                key,
-                encoding=zenoh.Encoding.APPLICATION_JSON,
-                # estimates are superseded 4 ms later: drop rather than block the estimator
-                congestion_control=zenoh.CongestionControl.DROP,
-                priority=zenoh.Priority.DATA_HIGH if kind == "health" else zenoh.Priority.DATA,
-            )
-        except zenoh.ZError as exc:
-            self.errors += 1
-            log.warning("zenoh: cannot declare a publisher on %s: %s", key, exc)
-            return None
-        self._publishers[key] = publisher
-        return publisher
+        with self._lock:
+            if route.publisher is not None:
+                return route.publisher
+            try:
+                publisher = self._session.declare_publisher(
+                    route.key,
+                    encoding=self._zenoh_encoding,
+                    # estimates are superseded 4 ms later: drop rather than block the estimator
+                    congestion_control=zenoh.CongestionControl.DROP,
+                    priority=(
+                        zenoh.Priority.DATA_HIGH if route.kind == "health" else zenoh.Priority.DATA
+                    ),
+                )
+            except zenoh.ZError as exc:
+                self.errors += 1
+                route.failed += 1
+                log.warning("zenoh: cannot declare a publisher on %s: %s", route.key, exc)
+                return None
+            self._publishers[route.key] = publisher
+            route.publisher = publisher
+            return publisher
+
+    @property
+    def published(self) -> dict[str, int]:
+        """Records handed to Zenoh, per kind."""
+        out = dict.fromkeys(KINDS, 0)
+        for r in self._all_routes():
+            out[r.kind] += r.selected()[1] - r.failed
+        return out
+
+    @property
+    def decimated(self) -> dict[str, int]:
+        """Records left out by the decimation, per kind."""
+        out = dict.fromkeys(KINDS, 0)
+        for r in self._all_routes():
+            n, selected = r.selected()
+            out[r.kind] += n - selected
+        return out
+
+    def _all_routes(self) -> list[_Route]:
+        with self._lock:
+            return [r for routes in self._routes.values() for r in routes.values()]
 
     # -- liveliness -----------------------------------------------------------------------
 
     def _declare_vehicle_token(self, sysid: int) -> None:
-        """Declare ``<prefix>/@alive/<service-id>/<sysid>`` (caller holds the lock)."""
+        """Declare ``<prefix>/@alive/<service-id>/<sysid>`` (caller holds the lock; on
+        failure the next record tries again)."""
         try:
             token = self._session.liveliness().declare_token(
                 alive_key(self.prefix, self.service_id, sysid)
@@ -255,13 +384,16 @@ class ZenohSink:
             now = time.monotonic()
             with self._lock:
                 stale = [
-                    sysid
-                    for sysid in self._vehicle_tokens
-                    if now - self._last_seen.get(sysid, now) > self.vehicle_timeout_s
+                    v
+                    for v in self._vehicles.values()
+                    if v.alive and now - v.last_seen > self.vehicle_timeout_s
                 ]
-                for sysid in stale:
-                    token = self._vehicle_tokens.pop(sysid)
-                    self._undeclare(token)
+                for vehicle in stale:
+                    sysid = vehicle.sysid
+                    vehicle.alive = False
+                    token = self._vehicle_tokens.pop(sysid, None)
+                    if token is not None:
+                        self._undeclare(token)
                     log.info("zenoh: vehicle %d silent for %.1f s", sysid, self.vehicle_timeout_s)
 
     def alive_vehicles(self) -> list[int]:
@@ -274,7 +406,8 @@ class ZenohSink:
     def state_payload(self, sysid: int) -> dict[str, Any] | None:
         """The latest record of each kind for one vehicle (None if never seen)."""
         with self._lock:
-            slots = dict(self._latest.get(sysid, {}))
+            vehicle = self._vehicles.get(sysid)
+            slots = {} if vehicle is None else dict(vehicle.slots)
         if not slots:
             return None
 
@@ -310,7 +443,7 @@ class ZenohSink:
         zenoh = self._zenoh
         try:
             with self._lock:
-                sysids = sorted(self._latest)
+                sysids = sorted(self._vehicles)
             for sysid in sysids:
                 key = state_key(self.prefix, sysid)
                 if not query.key_expr.intersects(key):
@@ -365,6 +498,8 @@ class ZenohSink:
         with self._lock:
             tokens = list(self._vehicle_tokens.values())
             self._vehicle_tokens.clear()
+            for vehicle in self._vehicles.values():
+                vehicle.alive = False
         for entity in [*tokens, self._service_token, *self._queryables]:
             self._undeclare(entity)
         for publisher in self._publishers.values():
@@ -388,6 +523,7 @@ def open_zenoh_sink(
     *,
     prefix: str = DEFAULT_PREFIX,
     decimation: Mapping[str, int] | None = None,
+    encoding: str = DEFAULT_ENCODING,
     service_id: str,
     effective_config: Mapping[str, Any],
     vehicle_timeout_s: float = 5.0,
@@ -398,6 +534,7 @@ def open_zenoh_sink(
 
     ``zenoh_config_path``: a Zenoh JSON5 file, or None for the embedded loopback peer.
     ``decimation``: per key kind (``KINDS``), publish every Nth record (0 = off).
+    ``encoding``: the payloads' wire encoding, ``"json"`` or ``"msgpack"`` (``ENCODINGS``).
     ``check_unique``: refuse to start when a namesake holds ``@alive/<service-id>``
     (False for the workers after the first of one ``serve --workers N``: they share the id).
     ``reads``: the record streams and rates published (``[zenoh.rates]``; default: the
@@ -407,6 +544,7 @@ def open_zenoh_sink(
     check_prefix(prefix)
     check_service_id(service_id)
     check_decimation(decimation)
+    check_encoding(encoding)
     config, name = load_zenoh_config(zenoh_config_path)
     session = open_session(config, name)
     try:
@@ -415,6 +553,7 @@ def open_zenoh_sink(
             config_name=None if zenoh_config_path is None else name,
             prefix=prefix,
             decimation=decimation,
+            encoding=encoding,
             service_id=service_id,
             effective_config=effective_config,
             vehicle_timeout_s=vehicle_timeout_s,

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from glmav_observer.publish.schema import ENCODINGS
 from glmav_observer.publish.zenoh_sink import open_zenoh_sink
 from glmav_testkit.zenoh_helpers import (
     RouterProcess,
@@ -84,14 +85,18 @@ def test_router_killed_and_restarted_publishing_resumes(
     assert sink.published["active"] == written[0]
 
 
+@pytest.mark.parametrize("encoding", list(ENCODINGS))
 def test_echo_prints_json_lines_equal_to_the_records(
-    tmp_path: Path, free_tcp_port: Callable[[], int]
+    tmp_path: Path, free_tcp_port: Callable[[], int], encoding: str
 ) -> None:
+    """Whatever the wire encoding, echo decodes by the sample's encoding, validates, and
+    prints the records' to_dict() + service_id."""
     with running_router(free_tcp_port()) as router:
         sink = open_zenoh_sink(
             str(client_config(tmp_path / "svc.json5", router.port)),
             service_id="echo-svc",
             effective_config={"x": 1},
+            encoding=encoding,
         )
         endpoint = f"tcp/127.0.0.1:{router.port}"
         echo = subprocess.Popen(
@@ -133,7 +138,7 @@ def test_echo_prints_json_lines_equal_to_the_records(
     assert len(lines) == 20
     for line in lines:
         assert line["key"] == "glmav/3/velocity/c2"
-        assert line["encoding"] == "application/json"
+        assert line["encoding"] == ENCODINGS[encoding]
         want = {**velocity(3, "c2", line["value"]["seq"]).to_dict(), "service_id": "echo-svc"}
         assert line["value"] == want
     seqs = [line["value"]["seq"] for line in lines]

@@ -3,7 +3,11 @@ subscribers in client mode (multicast scouting off, explicit tcp/127.0.0.1 endpo
 
 from __future__ import annotations
 
+import ast
 import json
+import subprocess
+import sys
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
@@ -16,7 +20,7 @@ import zenoh
 
 from glmav_observer.publish.schema import SCHEMAS, validate
 from glmav_observer.publish.zenoh_config import ZenohConfigError
-from glmav_observer.publish.zenoh_keys import route
+from glmav_observer.publish.zenoh_keys import decode_payload, route
 from glmav_observer.publish.zenoh_sink import ZenohSink, open_zenoh_sink
 from glmav_observer.records import CONFIGS, Record, VelocityRecord
 from glmav_testkit.zenoh_helpers import (
@@ -225,3 +229,117 @@ def test_client_without_router_is_a_clear_config_error(
     assert message.startswith(f"{path}: cannot open the Zenoh session (mode client")
     assert f"tcp/127.0.0.1:{port}" in message
     assert "/root/.cargo" not in message  # no Rust source locations
+
+
+#: The reader docs/zenoh.md shows ("Reading the records"): zenoh and the stdlib only.
+THREE_LINE_READER = """\
+import json, zenoh
+session = zenoh.open(zenoh.Config.from_json5('{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7447"]}}'))
+for sample in (subscriber := session.declare_subscriber("glmav/**")): print(sample.key_expr, json.loads(sample.payload.to_bytes()), flush=True)
+"""
+
+
+def test_the_three_line_reader_of_the_docs_decodes_a_published_record(
+    sink: ZenohSink, router: RouterProcess
+) -> None:
+    docs = (Path(__file__).resolve().parents[3] / "docs" / "zenoh.md").read_text(encoding="utf-8")
+    assert THREE_LINE_READER in docs  # the script tested is the one shown
+    script = THREE_LINE_READER.replace("7447", str(router.port))
+    reader = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        lines: list[str] = []
+        threading.Thread(target=lambda: lines.extend(reader.stdout or ()), daemon=True).start()
+        step = 0
+        while not lines and reader.poll() is None and step < 4000:  # until it is subscribed
+            sink.write(velocity(5, "active", step))
+            step += 1
+            time.sleep(0.005)
+        assert lines, reader.stderr.read() if reader.stderr and reader.poll() is not None else ""
+        key, _, value = lines[0].partition(" ")
+        assert key == "glmav/5/velocity/active"
+        got = ast.literal_eval(value.strip())  # the dict json.loads gave, as print shows it
+        assert got == {**velocity(5, "active", got["seq"]).to_dict(), "service_id": "test-svc"}
+        assert validate(got) == []
+    finally:
+        reader.kill()
+        reader.wait()
+
+
+def test_msgpack_sink_publishes_the_same_objects_with_its_encoding(
+    router: RouterProcess, viewer: Any, tmp_path: Path
+) -> None:
+    sink = open_zenoh_sink(
+        str(client_config(tmp_path / "mp.json5", router.port)),
+        service_id="mp-svc",
+        effective_config=EFFECTIVE,
+        encoding="msgpack",
+    )
+    got: list[tuple[str, str, Any]] = []
+    warm: list[int] = []
+
+    def on_sample(s: zenoh.Sample) -> None:
+        value = decode_payload(s.payload.to_bytes(), str(s.encoding))
+        if value["sysid"] == WARMUP_SYSID:
+            warm.append(1)
+        else:
+            got.append((str(s.key_expr), str(s.encoding), value))
+
+    sub = viewer.declare_subscriber("glmav/**", on_sample)
+    try:
+        records = vehicle_stream(6, 40)
+        assert wait_until(lambda: (sink.write(velocity(WARMUP_SYSID, "full", 0)), warm)[1], 10)
+        for record in records:
+            sink.write(record)
+            time.sleep(0.001)
+        assert wait_until(lambda: len(got) >= len(records), 10)
+    finally:
+        sub.undeclare()
+        sink.close()
+    assert len(got) == len(records)
+    by_key: dict[str, list[Any]] = defaultdict(list)
+    for key, encoding, value in got:
+        assert encoding == "application/msgpack"
+        assert validate(value) == []
+        by_key[key].append(value)
+    want: dict[str, list[Any]] = defaultdict(list)
+    for record in records:  # per key in order (keys of other priorities may overtake)
+        want[route("glmav", record)[1]].append({**record.to_dict(), "service_id": "mp-svc"})
+    assert by_key == want
+
+
+def test_counters_stay_exact_with_writers_on_two_threads() -> None:
+    """write() takes no lock on its path: each key numbers its records with an
+    itertools.count, so two link threads writing the same keys lose no count."""
+    sink = open_zenoh_sink(
+        None,
+        service_id="threads-svc",
+        effective_config={},
+        decimation={"velocity": 3, "active": 0},
+        check_unique=False,
+    )
+    n = 3000
+    try:
+
+        def writer() -> None:
+            for step in range(n):
+                for config in ("full", "c1", "active"):
+                    sink.write(velocity(4, config, step))
+
+        threads = [threading.Thread(target=writer) for _ in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        stats = sink.stats()
+    finally:
+        sink.close()
+    per_key = 2 * n  # records written per velocity key
+    assert stats["published"]["velocity"] == 2 * -(-per_key // 3)
+    assert stats["decimated"]["velocity"] == 2 * per_key - 2 * -(-per_key // 3)
+    assert stats["published"]["active"] == 0
+    assert stats["decimated"]["active"] == per_key
+    assert stats["errors"] == 0
+    assert stats["publishers"] == 2  # none for a kind decimated to 0
+    assert stats["vehicles_alive"] == [4]

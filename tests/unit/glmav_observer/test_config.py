@@ -91,6 +91,7 @@ def test_cli_exit_code_2_on_bad_config(tmp_path: Path, capsys: pytest.CaptureFix
         ({"rerun": {"serve_bind": "not an ip"}}, "rerun.serve_bind", "must be an IP address"),
         ({"service": {"id": "a b/c"}}, "service.id", "1 to 64 characters"),
         ({"zenoh": {"prefix": "glmav/**"}}, "zenoh.prefix", "no wildcards"),
+        ({"zenoh": {"encoding": "cbor"}}, "zenoh.encoding", "must be one of 'json', 'msgpack'"),
         ({"ingest": {"max_vehicles": 100_000}}, "ingest.max_vehicles", r"\[1, 254\]"),
         ({"ingest": {"confirm_samples": 0}}, "ingest.confirm_samples", r"\[1, 1000\]"),
         ({"rates": {"hz": {"ATTITUDE": 1e6}}}, "rates.hz.ATTITUDE", r"\[0, 1000\], or -1"),
