@@ -343,6 +343,27 @@ def _row(  # noqa: PLR0917 -- one table row's cells, in column order
     }
 
 
+def _no_drop_counts(rows: Sequence[dict[str, Any]]) -> dict[str, int]:
+    """Per mode, the most vehicles decoded with < 0.1 % dropped (latency aside)."""
+    return {
+        m: max((r["vehicles"] for r in rows if r["mode"] == m and r["dropped_pct"] < 0.1),
+               default=0)
+        for m in sorted({r["mode"] for r in rows})
+    }  # fmt: skip
+
+
+def _mode_key(label: str) -> str:
+    """The ``--modes`` name of a row's mode label."""
+    if label == READ_ONLY:
+        return "read_only"
+    if label == NO_ESTIMATION:
+        return "no_estimation"
+    if label.endswith(", router"):
+        return "router"
+    base = "single" if label.startswith("1 worker") else "sharded"
+    return base + ("_outputs" if label.endswith(OUTPUTS) else "")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--modes`` and ``--vehicles``: a part of the run (see the module doc)."""
     parser.add_argument("--modes", nargs="+", choices=MODES, help="modes to run (default all)")
@@ -375,9 +396,16 @@ def run(
     run_modes = [m for m in MODES if modes is None or m in modes]
     with tempfile.TemporaryDirectory(prefix="glmav-bench-fleet-") as tmp:
         tlog = record_tlog(Path(tmp) / "design.tlog", seconds + 2.0, truth=False)
-        for mode in run_modes:
-            mode_counts = tuple(sorted(vehicles)) if vehicles else _mode_counts(mode, quick)
-            for n in mode_counts:
+        counts = {
+            m: tuple(sorted(vehicles)) if vehicles else _mode_counts(m, quick) for m in run_modes
+        }
+        saturated: set[str] = set()
+        # vehicles outer, modes inner: the pairs at one vehicle count run back to back, so
+        # that the shared machine's load (it moves by minutes) hits them alike
+        for n in sorted({k for c in counts.values() for k in c}):
+            for mode in run_modes:
+                if n not in counts[mode] or mode in saturated:
+                    continue
                 t0 = time.monotonic()
                 if mode == "read_only":
                     row = _point_read_only(tlog, n, seconds)
@@ -392,7 +420,8 @@ def run(
                 rows.append(row)
                 print(row, file=sys.stderr, flush=True)
                 if mode in STOP_AT_SATURATION and row["dropped_pct"] > SATURATED_DROP_PCT:
-                    break  # saturated: more vehicles only drop more
+                    saturated.add(mode)  # more vehicles only drop more
+    rows.sort(key=lambda r: (run_modes.index(_mode_key(r["mode"])), r["vehicles"]))
     best = {
         m: max(
             (r["vehicles"] for r in rows
@@ -401,6 +430,7 @@ def run(
         )
         for m in {r["mode"] for r in rows}
     }  # fmt: skip
+    no_drops = _no_drop_counts(rows)
     sharded = f"{workers} workers"
     sharded_out = f"{workers} workers, {OUTPUTS}"
     single_out = f"1 worker, {OUTPUTS}"
@@ -423,6 +453,15 @@ def run(
             goal(
                 f"vehicles held by {sharded}, {what} (< 0.1 % dropped, p99 ≤ 5 ms)",
                 float(best[held_mode]),
+                float(GOAL_VEHICLES),
+                higher_is_better=True,
+            )
+        )
+        goals.append(
+            goal(
+                f"vehicles decoded without drops by {sharded}, {what} (< 0.1 % dropped, any "
+                "latency)",
+                float(no_drops.get(held_mode, 0)),
                 float(GOAL_VEHICLES),
                 higher_is_better=True,
             )
@@ -501,6 +540,7 @@ def run(
         "vehicles_selected": list(vehicles) if vehicles else None,
         "rows": rows,
         "vehicles_held": best,
+        "vehicles_without_drops": no_drops,
         "decoded_per_s_max": throughput,
         "goals": goals,
     }
@@ -555,6 +595,9 @@ def to_markdown(result: dict[str, Any]) -> str:
         "",
         "Vehicles held (< 0.1 % dropped and p99 ≤ 5 ms): "
         + ", ".join(f"{k}: {v}" for k, v in sorted(r["vehicles_held"].items()))
+        + ". Vehicles decoded without drops (< 0.1 %, any latency: the throughput's "
+        "view, less at the mercy of the machine's load than p99): "
+        + ", ".join(f"{k}: {v}" for k, v in sorted(_no_drop_counts(r["rows"]).items()))
         + ". Most datagrams decoded per second (at saturation): "
         + ", ".join(f"{k}: {v:,.0f}" for k, v in sorted(r.get("decoded_per_s_max", {}).items()))
         + ".",

@@ -293,8 +293,9 @@ def _outputs_text(result: dict[str, Any]) -> str:
         f"{o['us_per_record_no_subscriber']:.2f} µs without (this process, Zenoh's threads "
         f"included; the subscriber's own CPU, in its process, is not: "
         f"{o['subscriber_cpu_s']:.1f} s for {o['subscriber_samples']:,} samples, "
-        f"{o['delivered_fraction']:.1%} of the {o['published_subscribed_sinks']:,} published, "
-        "the rest dropped by congestion control at this replay's speed). Published per kind: "
+        f"{o['delivered_fraction']:.1%} of the {o['published_subscribed_sinks']:,} published "
+        "at this replay's speed; congestion control drops what it cannot take). Published "
+        "per kind, all repeats: "
         + ", ".join(f"{k} {v:,}" for k, v in o["published_by_kind"].items())
         + f". Load average {lb[0]:.2f} before, {la[0]:.2f} after (a shared machine: the pairs "
         "compare, measured round-robin; the absolute figures move with the load)."
