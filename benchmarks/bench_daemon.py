@@ -15,10 +15,17 @@ SCALED_IMU, RAW_IMU 250 Hz each, ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz, SIM_
    reads with kernel receive time stamps (``SO_TIMESTAMPNS``) and the latency of a
    datagram is the time from its arrival in the kernel to the return of ``feed_bytes``
    (its records handed to the sinks). Goal: p99 <= 2 ms.
+
+The headline is the service with its default outputs on: the sinks ``serve`` opens with
+Zenoh on (:func:`benchmarks.outputs.default_output_sinks`, the product's ``open_sinks``)
+and one real subscriber on ``glmav/**`` in another process; the service without sinks is
+the baseline beside it in the same run (throughput: the same batches, in turn; and the
+outputs without a subscriber there too).
 """
 
 from __future__ import annotations
 
+import os
 import socket
 import statistics
 import struct
@@ -30,9 +37,14 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_goals, format_table, goal, machine
+from benchmarks.outputs import Outputs, default_outputs, sinks_summary, with_unique_id
 
 BATCH = 2000  # datagrams per batch: fits the default 4 MB receive buffer
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+#: the services compared, each with its own sinks
+NO_OUTPUTS = "no outputs (baseline)"
+OUTPUTS = "default outputs, subscribed"
+OUTPUTS_UNSUBSCRIBED = "default outputs, no subscriber"
 
 
 def _frames(duration_s: float) -> tuple[list[bytes], list[float]]:
@@ -64,13 +76,16 @@ def _udp_pair(rcvbuf: int = 4 * 1024 * 1024) -> tuple[socket.socket, socket.sock
     return rx, tx, rx.getsockname()[1]
 
 
-def _throughput(frames: list[bytes], n_batches: int) -> dict[str, Any]:
+def _throughput(frames: list[bytes], n_batches: int, sinks: dict[str, list[Any]]) -> dict[str, Any]:
+    """Per batch, the same datagrams drained by a service per entry of ``sinks`` (its
+    outputs; in turn, the order rotating) and by mavutil."""
     from pymavlink import mavutil
 
     from glmav_observer.app import Service
     from glmav_observer.config import load_config
 
-    service = Service(load_config(None), [])
+    config = load_config(None)
+    services = {name: Service(config, s) for name, s in sinks.items()}
     rx, tx, port = _udp_pair()
     rx.setblocking(False)
     base = mavutil.mavlink_connection(f"udpin:127.0.0.1:{0}", source_system=255)
@@ -80,28 +95,32 @@ def _throughput(frames: list[bytes], n_batches: int) -> dict[str, Any]:
     base.port.bind(("127.0.0.1", 0))
     base.port.setblocking(False)
     base_port = base.port.getsockname()[1]
-    svc_rates, raw_rates, svc_cpu_us = [], [], []
+    svc_rates: dict[str, list[float]] = {name: [] for name in services}
+    svc_cpu_us: dict[str, list[float]] = {name: [] for name in services}
+    raw_rates = []
     lost = 0
+    names = list(services)
     for b in range(n_batches):
         i0 = (b * BATCH) % max(1, len(frames) - BATCH)
         batch = frames[i0 : i0 + BATCH]
-        # service
-        for f in batch:
-            tx.sendto(f, ("127.0.0.1", port))
-        n = 0
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        while True:
-            try:
-                data = rx.recv(65535)
-            except BlockingIOError:
-                break
-            service.feed_bytes("udp", data, time.monotonic())
-            n += 1
-        dt = time.perf_counter() - t0
-        svc_rates.append(n / dt)
-        svc_cpu_us.append((time.process_time() - c0) / max(n, 1) * 1e6)
-        lost += len(batch) - n
+        for name in names[b % len(names) :] + names[: b % len(names)]:
+            service = services[name]
+            for f in batch:
+                tx.sendto(f, ("127.0.0.1", port))
+            n = 0
+            t0 = time.perf_counter()
+            c0 = time.process_time()
+            while True:
+                try:
+                    data = rx.recv(65535)
+                except BlockingIOError:
+                    break
+                service.feed_bytes("udp", data, time.monotonic())
+                n += 1
+            dt = time.perf_counter() - t0
+            svc_rates[name].append(n / dt)
+            svc_cpu_us[name].append((time.process_time() - c0) / max(n, 1) * 1e6)
+            lost += len(batch) - n
         # baseline: mavutil receive + parse of the same datagrams
         for f in batch:
             tx.sendto(f, ("127.0.0.1", base_port))
@@ -118,11 +137,11 @@ def _throughput(frames: list[bytes], n_batches: int) -> dict[str, Any]:
     tx.close()
     base.close()
     return {
-        "service_msgs_per_s": statistics.median(svc_rates),
-        "service_cpu_us_per_datagram": statistics.median(svc_cpu_us),
+        "service_msgs_per_s": {k: statistics.median(v) for k, v in svc_rates.items()},
+        "service_cpu_us_per_datagram": {k: statistics.median(v) for k, v in svc_cpu_us.items()},
         "mavutil_msgs_per_s": statistics.median(raw_rates),
         "datagrams_lost": lost,
-        "records": service.records,
+        "records": {k: svc.records for k, svc in services.items()},
     }
 
 
@@ -145,7 +164,9 @@ for f, t in zip(frames, times):
 """
 
 
-def _latency(frames: list[bytes], times: list[float], seconds: float) -> dict[str, Any]:
+def _latency(
+    frames: list[bytes], times: list[float], seconds: float, sinks: list[Any]
+) -> dict[str, Any]:
     from glmav_observer.app import Service
     from glmav_observer.config import load_config
 
@@ -161,7 +182,7 @@ def _latency(frames: list[bytes], times: list[float], seconds: float) -> dict[st
         rx, _tx, port = _udp_pair()
         rx.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
         rx.settimeout(5.0)
-        service = Service(load_config(None), [])
+        service = Service(load_config(None), sinks)
         sender = subprocess.Popen([sys.executable, "-c", _SENDER, str(port), str(path)])
         lat_kernel, lat_user = [], []
         try:
@@ -190,45 +211,99 @@ def _latency(frames: list[bytes], times: list[float], seconds: float) -> dict[st
     }
 
 
+def _config(tag: str) -> Any:
+    from glmav_observer.config import load_config
+
+    return with_unique_id(load_config(None), tag)
+
+
 def run(quick: bool = False) -> dict[str, Any]:
     frames, times = _frames(6.0 if quick else 20.0)
-    tp = _throughput(frames, 3 if quick else 9)
-    lat = _latency(frames, times, 3.0 if quick else 15.0)
-    ratio = tp["service_msgs_per_s"] / tp["mavutil_msgs_per_s"]
-    rows = [
-        {"measure": "service msgs/s (UDP in -> records out)", "value": tp["service_msgs_per_s"]},
+    load_before = os.getloadavg()
+    seconds = 3.0 if quick else 15.0
+    outputs: dict[str, Outputs] = {}
+    with (
+        default_outputs(_config("daemon"), subscriber=True) as subscribed,
+        default_outputs(_config("daemon-nosub")) as unsubscribed,
+    ):
+        outputs = {OUTPUTS: subscribed, OUTPUTS_UNSUBSCRIBED: unsubscribed}
+        tp = _throughput(
+            frames,
+            3 if quick else 9,
+            {NO_OUTPUTS: [], OUTPUTS: subscribed.sinks, OUTPUTS_UNSUBSCRIBED: unsubscribed.sinks},
+        )
+        load_mid = os.getloadavg()
+        lat = {
+            OUTPUTS: _latency(frames, times, seconds, subscribed.sinks),
+            NO_OUTPUTS: _latency(frames, times, seconds, []),
+        }
+        opened = sinks_summary(subscribed.sinks)
+    load_after = os.getloadavg()
+    rates = tp["service_msgs_per_s"]
+    cpu = tp["service_cpu_us_per_datagram"]
+    ratio = {k: v / tp["mavutil_msgs_per_s"] for k, v in rates.items()}
+    rows: list[dict[str, Any]] = []
+    for name in (OUTPUTS, OUTPUTS_UNSUBSCRIBED, NO_OUTPUTS):
+        rows += [
+            {"measure": f"service msgs/s (UDP in -> records out), {name}", "value": rates[name]},
+            {"measure": f"service CPU µs per datagram, {name}", "value": cpu[name]},
+            {"measure": f"ratio service / mavutil, {name}", "value": ratio[name]},
+        ]
+    rows += [
         {"measure": "mavutil recv_msg msgs/s (baseline)", "value": tp["mavutil_msgs_per_s"]},
-        {
-            "measure": "service CPU µs per datagram (receive, decode, estimation, records)",
-            "value": tp["service_cpu_us_per_datagram"],
-        },
-        {"measure": "ratio service / baseline", "value": ratio},
         {"measure": "datagrams lost in throughput batches", "value": tp["datagrams_lost"]},
-        {"measure": "latency p50 kernel arrival -> records (ms)", "value": lat["p50_ms"]},
-        {"measure": "latency p99 kernel arrival -> records (ms)", "value": lat["p99_ms"]},
-        {"measure": "latency max (ms)", "value": lat["max_ms"]},
-        {"measure": "processing p50 recv -> records (ms)", "value": lat["processing_p50_ms"]},
-        {"measure": "processing p99 recv -> records (ms)", "value": lat["processing_p99_ms"]},
-        {"measure": "latency sample (datagrams)", "value": lat["datagrams"]},
     ]
+    for name in (OUTPUTS, NO_OUTPUTS):
+        la = lat[name]
+        rows += [
+            {"measure": f"latency p50 kernel arrival -> records (ms), {name}", "value": la["p50_ms"]},
+            {"measure": f"latency p99 kernel arrival -> records (ms), {name}", "value": la["p99_ms"]},
+            {"measure": f"latency max (ms), {name}", "value": la["max_ms"]},
+            {"measure": f"processing p50 recv -> records (ms), {name}",
+             "value": la["processing_p50_ms"]},
+            {"measure": f"processing p99 recv -> records (ms), {name}",
+             "value": la["processing_p99_ms"]},
+            {"measure": f"latency sample (datagrams), {name}", "value": la["datagrams"]},
+        ]  # fmt: skip
     goals = [
-        goal("end-to-end throughput >= 0.8x raw mavutil receive (issue 16)", ratio, 0.8,
-             higher_is_better=True),
-        goal("arrival-to-record latency p99 <= 2 ms at default rates", lat["p99_ms"], 2.0,
-             higher_is_better=False),
+        goal("end-to-end throughput >= 0.8x raw mavutil receive (issue 16), default outputs on",
+             ratio[OUTPUTS], 0.8, higher_is_better=True),
+        goal("arrival-to-record latency p99 <= 2 ms at default rates, default outputs on",
+             lat[OUTPUTS]["p99_ms"], 2.0, higher_is_better=False),
+        goal("end-to-end throughput >= 0.8x raw mavutil receive, no outputs (baseline)",
+             ratio[NO_OUTPUTS], 0.8, higher_is_better=True),
+        goal("arrival-to-record latency p99 <= 2 ms at default rates, no outputs (baseline)",
+             lat[NO_OUTPUTS]["p99_ms"], 2.0, higher_is_better=False),
     ]  # fmt: skip
+    out_stats = {
+        name: {
+            "subscriber": o.stats.get("subscriber"),
+            "sinks": {k: v for k, v in o.stats.items() if k != "subscriber"},
+        }
+        for name, o in outputs.items()
+    }
     return {"name": "bench_daemon", "machine": machine(), "quick": quick, "rows": rows,
-            "goals": goals}  # fmt: skip
+            "goals": goals, "sinks": opened, "outputs": out_stats,
+            "records": tp["records"], "loadavg_before": load_before, "loadavg_mid": load_mid,
+            "loadavg_after": load_after}  # fmt: skip
 
 
 def to_markdown(result: dict[str, Any]) -> str:
-    return "\n\n".join(
-        [
-            "## bench_daemon: end-to-end daemon throughput and latency",
-            format_table(result["rows"]),
-            format_goals(result["goals"]),
-        ]
-    )
+    parts = ["## bench_daemon: end-to-end daemon throughput and latency"]
+    if result.get("label"):
+        parts.append(f"Label: {result['label']}.")
+    if result.get("sinks") is not None:
+        lb, la = result["loadavg_before"], result["loadavg_after"]
+        sub = (result.get("outputs", {}).get(OUTPUTS) or {}).get("subscriber") or {}
+        parts.append(
+            f"Headline: the service with its default outputs on ({', '.join(result['sinks'])} "
+            "from `open_sinks(config, zenoh_enabled=True)`, one subscriber on `glmav/**` in "
+            f"another process: {sub.get('samples', 0):,} samples received); the service "
+            f"without sinks beside it, same run. Load average {lb[0]:.2f} before, "
+            f"{la[0]:.2f} after."
+        )
+    parts += [format_table(result["rows"]), format_goals(result["goals"])]
+    return "\n\n".join(parts)
 
 
 if __name__ == "__main__":

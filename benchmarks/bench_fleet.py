@@ -4,14 +4,23 @@ The traffic is ``glmav-sitl fleet`` (a subprocess) replaying one simulator log r
 the design rates (ATTITUDE 100 Hz, HIGHRES_IMU 250 Hz, LOCAL_POSITION_NED 30 Hz, HEARTBEAT
 1 Hz: 381 datagrams/s per vehicle) as K vehicles to one UDP port, with vehicle starts
 spread over 1 s. The service runs in this process, on the shipped configuration (vehicle
-cap raised, no rate requests: the generator does not answer them), without sinks (the
-records are counted: the estimate, not a consumer, is measured):
+cap raised, no rate requests: the generator does not answer them). The headline modes run
+it with its default outputs on, the baselines without sinks (the records are counted):
 
-- ``1 worker``: the single-process service (``serve --workers 1``: ``Service.run``);
+- ``1 worker, default outputs``: ``serve --workers 1`` with the sinks it opens by default
+  with Zenoh on (:func:`benchmarks.outputs.default_output_sinks`: the product's
+  ``open_sinks``, whatever it publishes), one real subscriber on ``glmav/**`` in another
+  process connected to the sink's session (the publishers have a consumer);
+- ``N workers, default outputs``: ``serve --workers N`` the same way: the workers open
+  their own sinks from their specs (``worker_specs(..., zenoh_enabled=True)``, the first
+  checks the service id, the others share it), the subscriber connects to every worker's
+  session;
+- ``1 worker``: the single-process service (``serve --workers 1``: ``Service.run``), no sink;
 - ``N workers``: ``serve --workers N`` (N = cores): N worker processes estimating, each
   reading its own socket of the port (the kernel routes by system id:
   :mod:`glmav_observer.fleet.reuseport`; where it cannot, the parent reads the port here
-  and passes the datagrams through pipes, and the row's ``routing`` says ``router``);
+  and passes the datagrams through pipes, and the row's ``routing`` says ``router``), no
+  sink;
 - ``N workers, router``: the same with the parent reading the port and passing the
   datagrams through pipes (serve's fallback, and what it did before the kernel routed):
   the baseline of the kernel's routing in the same run, 10 to 100 vehicles.
@@ -22,15 +31,20 @@ arrival-to-publish latency per datagram (from the kernel's receive stamp of the 
 ``SO_TIMESTAMPNS``, to the records handed to the sinks: the wait in the socket's queue
 counts; through the router, across processes on the shared monotonic clock),
 p50 and p99; the generator's own CPU (fraction of one core). A mode's curve stops after
-the first point with more than 10 % dropped for one worker (it is saturated; more
-vehicles only drop more); the N-worker curves always run to 100 vehicles (the goal; saturation for the throughput). The machine is shared: the load average is recorded with every point.
+the first point with more than 10 % dropped for one worker and for the modes with outputs
+(saturated; more vehicles only drop more); the N-worker curves without outputs always run
+to 100 vehicles (the goal; saturation for the throughput). The machine is shared: the load
+average is recorded with every point.
 
     python -m benchmarks.bench_fleet            # 10 s per point, 2 to 100 vehicles
     python -m benchmarks.bench_fleet --quick    # 5 s per point, 5 / 25 / 100 vehicles
+    python -m benchmarks.bench_fleet --modes single_outputs sharded_outputs single sharded \\
+        --vehicles 2 5 10 15 20 25              # some modes and points only
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import select
@@ -40,12 +54,13 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_goals, format_table, goal, machine, main_for
+from benchmarks.outputs import default_outputs, subscriber_for, with_unique_id
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.fleet.latency import LatencyHistogram
@@ -69,6 +84,14 @@ VEHICLES_NO_ESTIMATION = (25, 50, 100)
 #: the floor: one thread that reads the port and does nothing with what it reads
 READ_ONLY = "read only"
 VEHICLES_READ_ONLY = (25, 100)
+#: the modes in the order they run (``--modes``): the headline first, with outputs on
+MODES = (
+    "single_outputs", "sharded_outputs", "single", "sharded", "router", "no_estimation",
+    "read_only",
+)  # fmt: skip
+#: the modes that stop after their first saturated point
+STOP_AT_SATURATION = ("single", "single_outputs", "sharded_outputs", "no_estimation")
+OUTPUTS = "default outputs"
 
 
 def _config(n_vehicles: int) -> ServiceConfig:
@@ -146,10 +169,32 @@ def _counted_drops(summary: Any) -> int:
     return sum(c.get(KERNEL_DROPS_COUNTER, 0) for c in summary.link_counters.values())
 
 
-def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) -> dict[str, Any]:
+def _point_single(
+    tlog: Path, n: int, seconds: float, *, estimate: bool = True, outputs: bool = False
+) -> dict[str, Any]:
+    if not outputs:
+        return _point_single_with(tlog, n, seconds, [], estimate=estimate)
+    cfg = with_unique_id(_config(n), f"fleet-1w-{n}")
+    with default_outputs(cfg, subscriber=True) as out:
+        out.closed_by_service = True  # Service.close closes them, as serve's does
+        row = _point_single_with(tlog, n, seconds, out.sinks, estimate=estimate, config=cfg)
+    row["mode"] = f"1 worker, {OUTPUTS}"
+    row["subscriber_samples"] = out.stats["subscriber"].get("samples", 0)
+    return row
+
+
+def _point_single_with(
+    tlog: Path,
+    n: int,
+    seconds: float,
+    sinks: list[Any],
+    *,
+    estimate: bool = True,
+    config: ServiceConfig | None = None,
+) -> dict[str, Any]:
     port = _free_udp_port()
-    cfg = _config(n)
-    svc = Service(cfg, []) if estimate else _NoEstimation(cfg, [])
+    cfg = config if config is not None else _config(n)
+    svc = Service(cfg, sinks) if estimate else _NoEstimation(cfg, sinks)
     hist = LatencyHistogram()
     orig = svc.feed_bytes
     clock = time.monotonic
@@ -178,6 +223,7 @@ def _point_single(tlog: Path, n: int, seconds: float, *, estimate: bool = True) 
     row["kernel_drops_counted"] = _counted_drops(s)
     row["routing"] = "one process"
     row["worker_us_per_datagram"] = 1e6 * cpu / max(1, frames_ok)
+    row["records"] = s.records
     return row
 
 
@@ -209,18 +255,33 @@ def _point_read_only(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
 
 
 def _point_sharded(
-    tlog: Path, n: int, seconds: float, workers: int, *, kernel: bool = True
+    tlog: Path,
+    n: int,
+    seconds: float,
+    workers: int,
+    *,
+    kernel: bool = True,
+    outputs: bool = False,
 ) -> dict[str, Any]:
     """``serve --workers N``; ``kernel=False``: the parent reads the port and routes
-    through pipes (what serve does where the OS cannot route by program), the baseline."""
+    through pipes (what serve does where the OS cannot route by program), the baseline.
+    ``outputs``: the workers open the default outputs themselves (serve's path: their
+    specs say Zenoh on), and a subscriber connects to each worker's session."""
     port = _free_udp_port()
     cfg = _config(n)
+    if outputs:
+        cfg = with_unique_id(cfg, f"fleet-{workers}w-{n}")
     conn = f"udpin:127.0.0.1:{port}"
     server = ShardedServer(
-        worker_specs(cfg, workers),
+        worker_specs(cfg, workers, zenoh_enabled=True if outputs else None),
         udp_links=[conn] if kernel else [],
         udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
     )
+    try:  # the workers' sinks are open once the server is built
+        sub = subscriber_for([w.process.pid for w in server.workers], cfg) if outputs else None
+    except BaseException:
+        server.close()
+        raise
     # as serve does: the kernel routes the port to the workers' sockets where it can
     links = {}
     if server.router_links or not kernel:
@@ -236,14 +297,20 @@ def _point_sharded(
         tlog, port, n, seconds, serve=lambda st: server.run(links, st), close=close
     )
     result = closed[0]
+    sub_stats = sub.stop() if sub is not None else {}
     s = result.summary
     frames_ok = sum(c.get("frames_ok", 0) for c in s.link_counters.values())
     mode = f"{workers} workers" if kernel else f"{workers} workers, router"
+    if outputs:
+        mode += f", {OUTPUTS}"
     row = _row(mode, n, gen, frames_ok, drops, result.latency, len(s.vehicles))
     row["kernel_drops_counted"] = _counted_drops(s)
     row["routing"] = "kernel" if server.kernel_routed else "router"
     row["worker_cpu_s"] = sum(result.worker_cpu_s.values())
     row["worker_us_per_datagram"] = 1e6 * row["worker_cpu_s"] / max(1, frames_ok)
+    row["records"] = s.records
+    if outputs:
+        row["subscriber_samples"] = sub_stats.get("samples", 0)
     return row
 
 
@@ -276,41 +343,85 @@ def _row(  # noqa: PLR0917 -- one table row's cells, in column order
     }
 
 
-def run(quick: bool = False) -> dict[str, Any]:
+def _no_drop_counts(rows: Sequence[dict[str, Any]]) -> dict[str, int]:
+    """Per mode, the most vehicles decoded with < 0.1 % dropped (latency aside)."""
+    return {
+        m: max((r["vehicles"] for r in rows if r["mode"] == m and r["dropped_pct"] < 0.1),
+               default=0)
+        for m in sorted({r["mode"] for r in rows})
+    }  # fmt: skip
+
+
+def _mode_key(label: str) -> str:
+    """The ``--modes`` name of a row's mode label."""
+    if label == READ_ONLY:
+        return "read_only"
+    if label == NO_ESTIMATION:
+        return "no_estimation"
+    if label.endswith(", router"):
+        return "router"
+    base = "single" if label.startswith("1 worker") else "sharded"
+    return base + ("_outputs" if label.endswith(OUTPUTS) else "")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--modes`` and ``--vehicles``: a part of the run (see the module doc)."""
+    parser.add_argument("--modes", nargs="+", choices=MODES, help="modes to run (default all)")
+    parser.add_argument(
+        "--vehicles", nargs="+", type=int, help="vehicle counts of every mode (default per mode)"
+    )
+
+
+def _mode_counts(mode: str, quick: bool) -> tuple[int, ...]:
+    if mode == "no_estimation":
+        return VEHICLES_NO_ESTIMATION[1:] if quick else VEHICLES_NO_ESTIMATION
+    if mode == "read_only":
+        return VEHICLES_READ_ONLY[1:] if quick else VEHICLES_READ_ONLY
+    if mode == "router":  # the baseline of the kernel's routing, in the same run
+        return VEHICLES_ROUTER_QUICK if quick else VEHICLES_ROUTER
+    return VEHICLES_QUICK if quick else VEHICLES
+
+
+def run(
+    quick: bool = False,
+    modes: Sequence[str] | None = None,
+    vehicles: Sequence[int] | None = None,
+) -> dict[str, Any]:
     from glmav_sitl.fleet import record_tlog
 
     seconds = 5.0 if quick else 10.0
-    counts = VEHICLES_QUICK if quick else VEHICLES
-    # the baseline of the kernel's routing: the parent reading the port, in the same run
-    router_counts = VEHICLES_ROUTER_QUICK if quick else VEHICLES_ROUTER
     workers = max(2, len(os.sched_getaffinity(0)))
     load_before = os.getloadavg()
     rows: list[dict[str, Any]] = []
+    run_modes = [m for m in MODES if modes is None or m in modes]
     with tempfile.TemporaryDirectory(prefix="glmav-bench-fleet-") as tmp:
         tlog = record_tlog(Path(tmp) / "design.tlog", seconds + 2.0, truth=False)
-        for mode in ("single", "sharded", "router", "no_estimation", "read_only"):
-            if mode == "no_estimation":
-                mode_counts: tuple[int, ...] = (
-                    VEHICLES_NO_ESTIMATION[1:] if quick else VEHICLES_NO_ESTIMATION
-                )
-            elif mode == "read_only":
-                mode_counts = VEHICLES_READ_ONLY[1:] if quick else VEHICLES_READ_ONLY
-            else:
-                mode_counts = counts if mode != "router" else router_counts
-            for n in mode_counts:
+        counts = {
+            m: tuple(sorted(vehicles)) if vehicles else _mode_counts(m, quick) for m in run_modes
+        }
+        saturated: set[str] = set()
+        # vehicles outer, modes inner: the pairs at one vehicle count run back to back, so
+        # that the shared machine's load (it moves by minutes) hits them alike
+        for n in sorted({k for c in counts.values() for k in c}):
+            for mode in run_modes:
+                if n not in counts[mode] or mode in saturated:
+                    continue
                 t0 = time.monotonic()
                 if mode == "read_only":
                     row = _point_read_only(tlog, n, seconds)
-                elif mode in ("single", "no_estimation"):
-                    row = _point_single(tlog, n, seconds, estimate=mode == "single")
+                elif mode in ("single", "single_outputs", "no_estimation"):
+                    row = _point_single(tlog, n, seconds, estimate=mode != "no_estimation",
+                                        outputs=mode == "single_outputs")  # fmt: skip
                 else:
-                    row = _point_sharded(tlog, n, seconds, workers, kernel=mode == "sharded")
+                    row = _point_sharded(tlog, n, seconds, workers, kernel=mode != "router",
+                                         outputs=mode == "sharded_outputs")  # fmt: skip
                 row["sent_per_s"] = row["sent"] / seconds
                 row["wall_s"] = time.monotonic() - t0
                 rows.append(row)
                 print(row, file=sys.stderr, flush=True)
-                if mode in ("single", "no_estimation") and row["dropped_pct"] > SATURATED_DROP_PCT:
-                    break  # saturated: more vehicles only drop more
+                if mode in STOP_AT_SATURATION and row["dropped_pct"] > SATURATED_DROP_PCT:
+                    saturated.add(mode)  # more vehicles only drop more
+    rows.sort(key=lambda r: (run_modes.index(_mode_key(r["mode"])), r["vehicles"]))
     best = {
         m: max(
             (r["vehicles"] for r in rows
@@ -319,33 +430,59 @@ def run(quick: bool = False) -> dict[str, Any]:
         )
         for m in {r["mode"] for r in rows}
     }  # fmt: skip
+    no_drops = _no_drop_counts(rows)
     sharded = f"{workers} workers"
+    sharded_out = f"{workers} workers, {OUTPUTS}"
+    single_out = f"1 worker, {OUTPUTS}"
     # what each mode decodes at most (at saturation: the rest is dropped), datagrams/s
     throughput = {
         m: max(r["decoded"] / seconds for r in rows if r["mode"] == m)
         for m in {r["mode"] for r in rows}
     }
-    at_goal = [r for r in rows if r["mode"] == sharded and r["vehicles"] == GOAL_VEHICLES]
-    goals = [
-        goal(
-            f"vehicles held by {sharded} (< 0.1 % dropped, p99 ≤ 5 ms)",
-            float(best.get(sharded, 0)),
-            float(GOAL_VEHICLES),
-            higher_is_better=True,
-        ),
-        goal(
-            f"{sharded} / 1 worker, vehicles held",
-            best.get(sharded, 0) / max(1, best.get("1 worker", 0)),
-            1.0,
-            higher_is_better=True,
-        ),
+    # the 100-vehicle rows: with outputs when that curve got there, else the baseline's
+    at_goal = [r for r in rows if r["mode"] == sharded_out and r["vehicles"] == GOAL_VEHICLES]
+    at_goal = at_goal or [
+        r for r in rows if r["mode"] == sharded and r["vehicles"] == GOAL_VEHICLES
+    ]
+    goals = []
+    for held_mode, single_mode, what in ((sharded_out, single_out, "default outputs on"),
+                                         (sharded, "1 worker", "no outputs (baseline)")):  # fmt: skip
+        if held_mode not in best:
+            continue
+        goals.append(
+            goal(
+                f"vehicles held by {sharded}, {what} (< 0.1 % dropped, p99 ≤ 5 ms)",
+                float(best[held_mode]),
+                float(GOAL_VEHICLES),
+                higher_is_better=True,
+            )
+        )
+        goals.append(
+            goal(
+                f"vehicles decoded without drops by {sharded}, {what} (< 0.1 % dropped, any "
+                "latency)",
+                float(no_drops.get(held_mode, 0)),
+                float(GOAL_VEHICLES),
+                higher_is_better=True,
+            )
+        )
+        if single_mode in best:
+            goals.append(
+                goal(
+                    f"{sharded} / 1 worker, vehicles held, {what}",
+                    best[held_mode] / max(1, best[single_mode]),
+                    1.0,
+                    higher_is_better=True,
+                )
+            )
+    goals.append(
         goal(
             "generator CPU at the largest point (% of a core)",
             max(r["generator_core_pct"] for r in rows),
             25.0,
             higher_is_better=False,
-        ),
-    ]
+        )
+    )
     router = f"{workers} workers, router"
     if router in throughput and sharded in throughput:
         goals.append(
@@ -357,6 +494,7 @@ def run(quick: bool = False) -> dict[str, Any]:
             )
         )
     if at_goal:
+        sharded = at_goal[0]["mode"]
         goals.append(
             goal(
                 f"{sharded}, {GOAL_VEHICLES} vehicles: dropped (%)",
@@ -398,8 +536,11 @@ def run(quick: bool = False) -> dict[str, Any]:
         "datagrams_per_vehicle_s": DATAGRAMS_PER_VEHICLE_S,
         "loadavg_before": load_before,
         "loadavg_after": os.getloadavg(),
+        "modes": run_modes,
+        "vehicles_selected": list(vehicles) if vehicles else None,
         "rows": rows,
         "vehicles_held": best,
+        "vehicles_without_drops": no_drops,
         "decoded_per_s_max": throughput,
         "goals": goals,
     }
@@ -422,6 +563,10 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"average {r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after "
         "(a shared machine: other work competes for the cores, and the generator, the "
         "router and the workers share them too).",
+        *([f"Label: {r['label']}."] if r.get("label") else []),
+        *([f"Modes run: {', '.join(r['modes'])}"
+           + (f"; vehicles {', '.join(map(str, r['vehicles_selected']))} only"
+              if r.get("vehicles_selected") else "") + "."] if r.get("modes") else []),
         "",
         format_goals(r["goals"]),
         "",
@@ -438,14 +583,21 @@ def to_markdown(result: dict[str, Any]) -> str:
         "what overflows is dropped). `routing`: `kernel` when each worker reads its own "
         "socket of the port (SO_REUSEPORT with the routing program), `router` when the "
         "parent reads it and passes datagrams through pipes (the wait in the pipes counts "
-        "too). The 1-worker "
-        f"curve stops after its first point above {SATURATED_DROP_PCT:.0f} % dropped. "
-        "`worker_us_per_datagram`: the workers' CPU time per datagram decoded.",
+        "too). The 1-worker curves and those with outputs "
+        f"stop after their first point above {SATURATED_DROP_PCT:.0f} % dropped. "
+        "`worker_us_per_datagram`: the workers' CPU time per datagram decoded (Zenoh's "
+        "threads included). `default outputs`: the sinks `serve` opens by default with Zenoh "
+        "on (`open_sinks`; the workers open their own), one subscriber on `glmav/**` in "
+        "another process (its CPU shares the cores, not the workers' figure); the modes "
+        "without are the baseline, same run.",
         "",
         _floor_text(r),
         "",
         "Vehicles held (< 0.1 % dropped and p99 ≤ 5 ms): "
         + ", ".join(f"{k}: {v}" for k, v in sorted(r["vehicles_held"].items()))
+        + ". Vehicles decoded without drops (< 0.1 %, any latency: the throughput's "
+        "view, less at the mercy of the machine's load than p99): "
+        + ", ".join(f"{k}: {v}" for k, v in sorted(_no_drop_counts(r["rows"]).items()))
         + ". Most datagrams decoded per second (at saturation): "
         + ", ".join(f"{k}: {v:,.0f}" for k, v in sorted(r.get("decoded_per_s_max", {}).items()))
         + ".",

@@ -7,6 +7,7 @@ import json
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -94,9 +95,32 @@ def format_goals(goals: Sequence[dict[str, Any]]) -> str:
     return format_table(rows)
 
 
+def git_head() -> str:
+    """The commit the benchmarks run at (``+dirty`` with uncommitted changes), or ""."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return ""
+    return head + ("+dirty" if dirty.strip() else "")  # fmt: skip
+
+
 def write_result(result: dict[str, Any]) -> Path:
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
-    result = {**result, "machine": machine(), "unix_time": time.time()}
+    result = {**result, "machine": machine(), "unix_time": time.time(), "git_head": git_head()}
     path = RESULTS_DIR / f"{result['name']}.json"
     path.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     return path
@@ -106,8 +130,17 @@ def main_for(module: ModuleType, argv: Sequence[str] | None = None) -> int:
     """The ``__main__`` of a benchmark module: run, print the table, write JSON."""
     parser = argparse.ArgumentParser(description=module.__doc__)
     parser.add_argument("--quick", action="store_true", help="fewer repeats (smoke run)")
-    args = parser.parse_args(argv)
-    result = module.run(quick=args.quick)
+    parser.add_argument(
+        "--label", default="", help="stored with the result, e.g. 'before (a845e63)'"
+    )
+    add_arguments = getattr(module, "add_arguments", None)  # a module's own options
+    if add_arguments is not None:
+        add_arguments(parser)
+    args = vars(parser.parse_args(argv))
+    label = args.pop("label")
+    result = module.run(**args)
+    if label:
+        result["label"] = label
     print(module.to_markdown(result))
     path = write_result(result)
     print(f"\nwrote {path}", file=sys.stderr)
