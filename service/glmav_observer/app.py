@@ -51,7 +51,14 @@ from glmav_observer.ingest.pipeline import (
 )
 from glmav_observer.ingest.rates import encode_rate_request
 from glmav_observer.publish.sink import Sink
-from glmav_observer.reads import READS_ALL, READS_SCORING, Reads, ReadsGate, reads_of
+from glmav_observer.reads import (
+    READS_ALL,
+    READS_SCORED_VEHICLE,
+    READS_SCORING,
+    Reads,
+    ReadsGate,
+    reads_of,
+)
 from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, VelocityRecord
 
 logger = logging.getLogger(__name__)
@@ -115,21 +122,31 @@ class Service:
     def _update_reads(self) -> None:
         """What the estimators build: the union of what the sinks read (a sink that does
         not say reads everything; so does the ``on_records`` hook), and the service's own
-        truth (the summary scores the estimates built against it)."""
+        truth; for a vehicle that sends truth, every estimate (the summary scores them:
+        :meth:`_reads_for`). A sink reading less than the most any vehicle gets is gated."""
         built = READS_SCORING
         for sink in self.sinks:
             built = built.union(reads_of(sink))
         if self._on_records is not None:
             built = READS_ALL
+        most = built.union(READS_SCORED_VEHICLE)
         self._gates = {
-            id(sink): ReadsGate(r, built)
+            id(sink): ReadsGate(r, most)
             for sink in self.sinks
-            if not (r := reads_of(sink)).covers(built)
+            if not (r := reads_of(sink)).covers(most)
         }
         if built != self.built:
             self.built = built
-            for est in self.estimators.values():
-                est.out.set_reads(built)
+            for sysid, est in self.estimators.items():
+                est.out.set_reads(self._reads_for(sysid))
+
+    def _reads_for(self, sysid: int) -> Reads:
+        """What vehicle ``sysid``'s estimator builds: :attr:`built`, and every estimate
+        once the vehicle has sent truth (a simulator: the summary's RMSE is over every
+        sample; a real vehicle never pays for it)."""
+        if sysid in self._scorers:
+            return self.built.union(READS_SCORED_VEHICLE)
+        return self.built
 
     @property
     def on_records(self) -> Callable[[list[Record]], None] | None:
@@ -210,7 +227,7 @@ class Service:
             self.config.estimation,
             input_counters=v.input_counters,
             rates_fn=v.rates.rates,
-            reads=self.built,
+            reads=self._reads_for(sysid),
         )
         if old is not None:  # a vehicle seen again after eviction keeps its history
             est.faults, est.switches = old.faults, old.switches
@@ -257,6 +274,9 @@ class Service:
             elif type(r) is TruthRecord:
                 sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
                 sc.add_truth(r.t_boot_s, r.v_ned_mps)
+                est = self.estimators.get(r.sysid)
+                if est is not None:  # scored from now on: every estimate built
+                    est.out.set_reads(self._reads_for(r.sysid))
         gates = self._gates
         for sink in list(self.sinks):
             try:

@@ -378,7 +378,7 @@ class ClaimingService(Service):
         if zs is None:
             for s in sinks:
                 s.close()
-            raise ClaimError("--claim needs Zenoh: give --zenoh FILE.json5 or [zenoh] enabled")
+            raise ClaimError("--claim needs Zenoh: drop --no-zenoh, or set [zenoh] enabled = true")
         super().__init__(config, sinks)
         self.claims = ClaimManager(
             zs.session, zs.prefix, period_s=period_s, vehicle_timeout_s=zs.vehicle_timeout_s

@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from glmav_observer.configurations import AIDED
+from glmav_observer.reads import STREAMS
 from glmav_observer.records import (
     CONFIGS,
     HEALTH_SCHEMA,
@@ -228,6 +229,13 @@ CONFIG: Schema = _object(
         "zenoh_config": {"type": ["string", "null"]},
         "decimation": _object(
             {kind: {"type": "integer", "minimum": 0, "maximum": MAX_DECIMATION} for kind in KINDS}
+        ),
+        # what is published per record stream, Hz of vehicle time (glmav_observer.reads)
+        "rates_hz": _object(
+            {
+                stream: {"anyOf": [{"type": "number", "minimum": 0}, {"const": "every"}]}
+                for stream in STREAMS
+            }
         ),
         "config": {"type": "object"},
     }

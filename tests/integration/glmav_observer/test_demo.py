@@ -58,9 +58,12 @@ def test_demo_isolates_the_fault_and_meets_the_daemon_bounds(
     turn = re.search(r"offboard climbing turn from 5 m \(t = ([\d.]+) s\)", steps)
     assert turn is not None and float(turn.group(1)) < 9.0, steps  # moving before the fault
 
-    # Zenoh: the local subscriber saw the published velocity records
+    # Zenoh: the local subscriber saw the published velocity records, at the default rates
+    # ([zenoh.rates]: active 50 Hz, each of the four configurations 10 Hz; aided while the
+    # fault lasts, and active once more at each decision): 90 a second, 10 % slack for the
+    # bank's start; at most 250 Hz x 6 streams would mean the rates were not applied
     z = re.search(r"Zenoh: (\d+) velocity records received", out)
-    assert z is not None and int(z.group(1)) > 0.9 * 22 * 250, out
+    assert z is not None and 0.9 * 22 * 90 < int(z.group(1)) < 22 * (90 + 50), out
 
     # active estimate within the daemon issue's bound (0.1 m/s per axis against SIM_STATE)
     row = re.search(r"^active\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.MULTILINE)

@@ -136,8 +136,8 @@ def test_a_tcp_stream_is_split_into_frames_for_the_workers(
         (["--rerun", "serve"], "glmav-observer serve: --rerun serve: with several workers"),
         (["--out", "records.txt"], "glmav-observer serve: records.txt: output must end in"),
         (["--workers", "0"], "argument --workers: 0 workers: must be 1..256"),
-        (["--claim", "--workers", "1"], "glmav-observer serve: --claim needs Zenoh"),
-        (["--claim"], "glmav-observer serve: --claim needs Zenoh"),
+        (["--claim", "--no-zenoh", "--workers", "1"], "glmav-observer serve: --claim needs Zenoh"),
+        (["--claim", "--no-zenoh"], "glmav-observer serve: --claim needs Zenoh"),
     ],
 )
 def test_bad_worker_options_exit_2_with_the_reason(

@@ -2,7 +2,7 @@
 sinks read publishes the same arithmetic, only less often.
 
 The same corpus flight (ArduPilot SITL, GPS switched off: the autopilot's velocity goes
-unaided, axes are isolated and re-admitted) is replayed twice through the service: once
+unaided, axes are isolated and re-admitted; its SIM_STATE truth left out) is replayed twice through the service: once
 with a sink that reads everything, once with a sink that reads the live defaults
 (configurations 10 Hz, active and aided 50 Hz, health 5 Hz). The second run's velocity
 records must be exactly the first run's, decimated by the builder's rule
@@ -14,13 +14,16 @@ from __future__ import annotations
 import lzma
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from glmav_observer.app_replay import replay_tlog
+from glmav_observer.app import Service
+from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
-from glmav_observer.reads import EVERY, Reads, next_due_s
-from glmav_observer.records import HealthRecord, Record, VelocityRecord
+from glmav_observer.ingest.framing import FrameCounters, iter_tlog
+from glmav_observer.reads import EVERY, READS_SCORING, Reads, next_due_s
+from glmav_observer.records import HealthRecord, Record, TruthRecord, VelocityRecord
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
 LIVE = Reads(
@@ -54,14 +57,30 @@ def _decimate(records: list[VelocityRecord], rate_hz: float) -> list[VelocityRec
     return out
 
 
+def _replay(messages: list[tuple[Any, float]], sink: _Collect) -> tuple[Service, ServiceSummary]:
+    service = Service(ServiceConfig(request_rates=False), [sink])
+    for msg, t in messages:
+        service.feed_message(msg, t, "log")
+    service.close()
+    return service, service.summary()
+
+
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[_Collect, _Collect, object, object]:
-    log = tmp_path_factory.mktemp("reads") / "b_quad_gps_off.tlog"
-    log.write_bytes(lzma.decompress((DATA / "b_quad_gps_off.tlog.xz").read_bytes()))
-    cfg = ServiceConfig(request_rates=False)
+def runs() -> tuple[_Collect, _Collect, ServiceSummary, ServiceSummary]:
+    data = lzma.decompress((DATA / "b_quad_gps_off.tlog.xz").read_bytes())
+    # without its SIM_STATE: a vehicle that sends truth gets every estimate built (the
+    # summary scores them), as a real vehicle never does
+    messages = [
+        (r.msg, r.t_host_us * 1e-6)
+        for r in iter_tlog(data, FrameCounters())
+        if r.msg.get_type() != "SIM_STATE"
+    ]
     full, live = _Collect(), _Collect(LIVE)
-    s_full = replay_tlog(log, cfg, [full])
-    s_live = replay_tlog(log, cfg, [live])
+    _, s_full = _replay(messages, full)
+    service, s_live = _replay(messages, live)
+    # the live run built what its sink reads, and no more (no gate held anything back)
+    assert service.records == len(live.records)
+    assert service.estimators[1].out.reads == LIVE.union(READS_SCORING)
     return full, live, s_full, s_live
 
 
@@ -69,7 +88,7 @@ def _stream(records: list[Record], config: str) -> list[VelocityRecord]:
     return [r for r in records if type(r) is VelocityRecord and r.config == config]
 
 
-def test_decisions_are_identical_whatever_is_built(runs: tuple) -> None:  # type: ignore[type-arg]
+def test_decisions_are_identical_whatever_is_built(runs: tuple[Any, ...]) -> None:
     _, _, s_full, s_live = runs
     v_full, v_live = s_full.vehicles[1], s_live.vehicles[1]
     assert v_full.faults == v_live.faults
@@ -80,7 +99,7 @@ def test_decisions_are_identical_whatever_is_built(runs: tuple) -> None:  # type
 
 @pytest.mark.parametrize(("config", "rate_hz"), [("full", 10.0), ("c2", 10.0), ("active", 50.0)])
 def test_built_records_are_the_full_rate_ones_decimated(
-    runs: tuple,  # type: ignore[type-arg]
+    runs: tuple[Any, ...],
     config: str,
     rate_hz: float,
 ) -> None:
@@ -105,7 +124,7 @@ def test_built_records_are_the_full_rate_ones_decimated(
     assert len(want) < len(every) or rate_hz >= 50.0
 
 
-def test_health_at_its_rate_and_at_every_decision(runs: tuple) -> None:  # type: ignore[type-arg]
+def test_health_at_its_rate_and_at_every_decision(runs: tuple[Any, ...]) -> None:
     full, live, _, s_live = runs
     health = [r for r in live.records if type(r) is HealthRecord]
     n_full = sum(1 for r in full.records if type(r) is HealthRecord)
@@ -119,3 +138,24 @@ def test_health_at_its_rate_and_at_every_decision(runs: tuple) -> None:  # type:
         after = [h for h in health if h.t_boot_s >= sw["t_boot_s"]]
         assert after and after[0].t_boot_s - sw["t_boot_s"] <= 0.02, sw
         assert after[0].active_config == sw["to"]
+
+
+def test_a_vehicle_that_sends_truth_is_scored_on_every_estimate() -> None:
+    """A simulator's vehicle (SIM_STATE): the summary's RMSE is over every sample whatever
+    the outputs read (the same figures as with a sink that reads everything), while the
+    sink still gets only its own rates."""
+    data = lzma.decompress((DATA / "a_quad_wind.tlog.xz").read_bytes())
+    messages = [(r.msg, r.t_host_us * 1e-6) for r in iter_tlog(data, FrameCounters())][:12_000]
+    full, live = _Collect(), _Collect(LIVE)
+    _, s_full = _replay(messages, full)
+    service, s_live = _replay(messages, live)
+    assert s_full.vehicles[1].truth_samples > 1000  # the prefix is long enough to score
+    assert s_live.vehicles[1].rmse_ned_mps == s_full.vehicles[1].rmse_ned_mps
+    # every estimate is built from the first truth sample on (health stays at its rate)
+    t_truth = next(r.t_boot_s for r in full.records if type(r) is TruthRecord)
+    n_health = sum(1 for r in full.records if type(r) is HealthRecord)
+    n_scored = sum(1 for r in full.records if r.t_boot_s >= t_truth) - n_health
+    n_health_live = sum(1 for r in live.records if type(r) is HealthRecord)  # all built
+    assert service.records - n_health_live >= n_scored
+    built = _stream(full.records, "full")
+    assert _stream(live.records, "full") == _decimate(built, 10.0)  # the sink: gated

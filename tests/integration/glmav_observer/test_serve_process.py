@@ -64,3 +64,53 @@ def test_serve_stops_cleanly_and_flushes(
     rows = list(csv.DictReader(out.open()))
     active = [r for r in rows if r["config"] == "active"]
     assert len(active) > 1000  # ~6 s of 250 Hz IMU, flushed at stop
+
+
+def _serve_until_bound(args: list[str], port: int) -> tuple[int, str]:
+    """Start ``serve`` with ``args``, wait until it holds ``port``, stop it: (exit, stderr)."""
+    proc = subprocess.Popen(
+        [OBS, "serve", "--workers", "1", "--link", f"udpin:127.0.0.1:{port}", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 30
+        while True:
+            probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                break  # serve holds it
+            finally:
+                probe.close()
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=30)
+    return proc.returncode, stderr
+
+
+@pytest.mark.timeout(120)
+def test_serve_says_where_its_estimates_go_and_warns_when_nowhere(
+    free_udp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    # by default: published on Zenoh (the embedded peer, no router), at the default rates
+    code, err = _serve_until_bound(["--service-id", f"where-{free_udp_port()}"], free_udp_port())
+    assert code == 0, err
+    assert "output: zenoh via the embedded loopback peer (no router needed)" in err
+    assert "active, aided at 50 Hz; full, c1, c2, c3 at 10 Hz; health at 5 Hz" in err
+    assert "no output" not in err
+    # --full-rate and a file: both said, every record
+    out = tmp_path / "r.jsonl"
+    code, err = _serve_until_bound(
+        ["--full-rate", "--out", str(out), "--service-id", f"full-{free_udp_port()}"],
+        free_udp_port(),
+    )
+    assert code == 0, err
+    assert f"output: file {out}: every record" in err
+    assert "truth at every record" in err and "10 Hz" not in err
+    # nothing at all: a warning, still a clean run
+    code, err = _serve_until_bound(["--no-zenoh"], free_udp_port())
+    assert code == 0, err
+    assert "WARNING" in err and "no output: the estimates are computed and published nowhere" in err
+    assert "output: zenoh" not in err

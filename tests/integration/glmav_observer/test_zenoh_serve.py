@@ -22,6 +22,7 @@ import pytest
 import zenoh
 
 from glmav_observer.publish.schema import validate
+from glmav_observer.reads import next_due_s
 from glmav_observer.records import CONFIGS
 from glmav_testkit.zenoh_helpers import RouterProcess, client_config, client_session, wait_until
 
@@ -43,6 +44,17 @@ def _service_toml(tmp: Path) -> Path:
     path = tmp / "service.toml"
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def _due(rows: list[dict[str, Any]], rate_hz: float) -> list[dict[str, Any]]:
+    """The rows a sink reading one stream at ``rate_hz`` is handed (the service's rule:
+    the first at or after each multiple of the period, glmav_observer.reads)."""
+    out, due = [], -math.inf
+    for row in rows:
+        if row["t_boot_s"] >= due:
+            out.append(row)
+            due = next_due_s(row["t_boot_s"], rate_hz)
+    return out
 
 
 def _row_of(value: dict[str, Any]) -> dict[str, Any]:
@@ -180,17 +192,21 @@ def test_serve_publishes_what_it_estimates_from_the_sitl(
         if row["schema"] == "glmav.velocity/1":
             written[row["config"]].append(row)
     assert len(written["active"]) > 0.9 * 8 * 250  # 8 s of sim at ~250 Hz (the IMU rate)
+    rates = config["rates_hz"]  # what the sink reads: [zenoh.rates], the live defaults
+    assert rates["active"] == 50.0 and rates["full"] == 10.0 and rates["health"] == 5.0
     for config_name in (*CONFIGS, "active"):
         every = DECIMATION["active" if config_name == "active" else "velocity"]
-        expected = written[config_name][::every]  # the 1st, N+1st, ... of each key
+        # the records due at the key's rate (the file has every one), then the 1st, N+1st,
+        # ... of those (the decimation applies to what the sink reads)
+        expected = _due(written[config_name], rates[config_name])[::every]
         got = [_row_of(v) for k, _, v in samples if k == f"glmav/7/velocity/{config_name}"]
         # TCP loopback at ~1.5k records/s: nothing dropped, nothing reordered
         assert len(got) == len(expected), config_name
         for g, e in zip(got, expected, strict=True):
             assert g == {k: e[k] for k in g}, config_name
             assert all(math.isfinite(x) for x in (g["v_ned_mps_n"], g["v_ned_mps_e"]))
-    n_health = sum(1 for r in rows if r["schema"] == "glmav.health/1")
-    assert keys["glmav/7/health"] == n_health > 0
+    health_rows = [r for r in rows if r["schema"] == "glmav.health/1"]
+    assert keys["glmav/7/health"] == len(_due(health_rows, rates["health"])) > 0
     # the state queryable held the very last estimate
     assert _row_of(state["velocity"]["active"]) == {
         k: written["active"][-1][k] for k in _row_of(state["velocity"]["active"])
@@ -342,11 +358,12 @@ def test_two_services_on_one_router_are_told_apart_and_a_namesake_refuses(
             check=False, capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         assert sitl.returncode == 0, sitl.stderr
-        # both streams arrive on glmav/1/velocity/active (~4 s x 250 Hz each)
+        # both streams arrive on glmav/1/velocity/active (~4 s x 50 Hz each: the active
+        # estimate's default rate, [zenoh.rates])
         assert wait_until(
             lambda: (
                 min(sum(1 for v in samples if v["service_id"] == sid) for sid in ports)
-                > 0.9 * 4 * 250
+                > 0.9 * 4 * 50
             ),
             20,
             period_s=0.2,

@@ -58,6 +58,7 @@ def test_one_decimation_check_for_the_file_the_sink_and_the_schema() -> None:
                 "prefix": "glmav",
                 "zenoh_config": None,
                 "decimation": parsed,
+                "rates_hz": load_config(None).zenoh.reads().to_dict(),
                 "config": {},
             }
             assert validate(published) == []
