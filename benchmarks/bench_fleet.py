@@ -273,7 +273,7 @@ def _point_sharded(
         cfg = with_unique_id(cfg, f"fleet-{workers}w-{n}")
     conn = f"udpin:127.0.0.1:{port}"
     server = ShardedServer(
-        worker_specs(cfg, workers, zenoh_enabled=True if outputs else None),
+        worker_specs(cfg, workers, zenoh_enabled=outputs),  # off: the baseline has none
         udp_links=[conn] if kernel else [],
         udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
     )
