@@ -98,24 +98,18 @@ def format_goals(goals: Sequence[dict[str, Any]]) -> str:
 def git_head() -> str:
     """The commit the benchmarks run at (``+dirty`` with uncommitted changes), or ""."""
     root = Path(__file__).resolve().parents[1]
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            check=True,
+
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args], cwd=root, capture_output=True, text=True, check=True
         ).stdout
+
+    try:
+        head = git("rev-parse", "--short", "HEAD").strip()
+        dirty = git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.CalledProcessError):
         return ""
-    return head + ("+dirty" if dirty.strip() else "")  # fmt: skip
+    return head + ("+dirty" if dirty.strip() else "")
 
 
 def write_result(result: dict[str, Any]) -> Path:

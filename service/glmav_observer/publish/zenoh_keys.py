@@ -184,7 +184,7 @@ def payload_encoder(encoding: str, service_id: str | None = None) -> Encoder:
 
         def encode_msgpack(record: Record) -> bytes:
             if type(record) is VelocityRecord:
-                (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+                b, v = record.v_body_mps, record.v_ned_mps
                 try:  # (math.isfinite: numpy scalars' own arithmetic would warn on inf - inf)
                     finite = (
                         isfinite(b[0]) and isfinite(b[1]) and isfinite(b[2])
@@ -192,14 +192,7 @@ def payload_encoder(encoding: str, service_id: str | None = None) -> Encoder:
                     )  # fmt: skip
                 except TypeError:
                     finite = False
-                if finite:
-                    d = {
-                        "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
-                        "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost, "health": health,
-                        "seq": seq, "source_config": src, "sigma_lost_mps": sigma, **extra,
-                    }  # fmt: skip
-                else:
-                    d = slow_dict(record)
+                d = _velocity_dict(record, extra) if finite else slow_dict(record)
             else:
                 d = slow_dict(record)
             try:
@@ -210,47 +203,27 @@ def payload_encoder(encoding: str, service_id: str | None = None) -> Encoder:
         return encode_msgpack
 
     dumps = orjson.dumps
-    if service_id is None:
 
-        def encode_json_fast(record: Record) -> bytes:
-            try:
-                if type(record) is VelocityRecord:
-                    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
-                    return dumps(
-                        {
-                            "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
-                            "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost,
-                            "health": health, "seq": seq, "source_config": src,
-                            "sigma_lost_mps": sigma,
-                        },
-                        option=_NUMPY,
-                    )  # fmt: skip
-                return dumps(record.to_dict(), option=_NUMPY)
-            except orjson.JSONEncodeError:
-                return encode_json(record.to_dict())
-
-        return encode_json_fast
-    sid = service_id
-
-    def encode_json_fast_sid(record: Record) -> bytes:
-        # the same as above with "service_id" last (a copy rather than a branch per record)
+    def encode_json_fast(record: Record) -> bytes:
         try:
             if type(record) is VelocityRecord:
-                (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
-                return dumps(
-                    {
-                        "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
-                        "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost,
-                        "health": health, "seq": seq, "source_config": src,
-                        "sigma_lost_mps": sigma, "service_id": sid,
-                    },
-                    option=_NUMPY,
-                )  # fmt: skip
+                return dumps(_velocity_dict(record, extra), option=_NUMPY)
             return dumps(slow_dict(record), option=_NUMPY)
         except orjson.JSONEncodeError:
             return encode_json(slow_dict(record))
 
-    return encode_json_fast_sid
+    return encode_json_fast
+
+
+def _velocity_dict(record: VelocityRecord, extra: dict[str, str]) -> dict[str, Any]:
+    """``record.to_dict()`` (plus ``extra``) from the tuple's fields, for an encoder that
+    writes NaN as null itself (to_dict does it for the stdlib's JSON)."""
+    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+    return {
+        "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
+        "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost, "health": health,
+        "seq": seq, "source_config": src, "sigma_lost_mps": sigma, **extra,
+    }  # fmt: skip
 
 
 _cached_encoder = functools.lru_cache(maxsize=64)(payload_encoder)

@@ -32,18 +32,7 @@ def test_serve_stops_cleanly_and_flushes(
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        # the service is up when its socket is bound: wait for it (an event, with a deadline)
-        deadline = time.monotonic() + 30
-        while True:
-            probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            try:
-                probe.bind(("127.0.0.1", port))
-            except OSError:
-                break  # the port is taken: serve has bound it
-            finally:
-                probe.close()
-            assert time.monotonic() < deadline and serve.poll() is None, serve.stderr
-            time.sleep(0.05)
+        _wait_bound(serve, port)
         sitl = subprocess.run(
             [SITL, "run", "--scenario", "hover", "--duration", "6", "--speed", "2",
              "--link", f"udpout:127.0.0.1:{port}"],
@@ -66,6 +55,21 @@ def test_serve_stops_cleanly_and_flushes(
     assert len(active) > 1000  # ~6 s of 250 Hz IMU, flushed at stop
 
 
+def _wait_bound(proc: subprocess.Popen[str], port: int) -> None:
+    """The service is up when its socket is bound: wait for it (an event, with a deadline)."""
+    deadline = time.monotonic() + 30
+    while True:
+        probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return  # the port is taken: serve has bound it
+        finally:
+            probe.close()
+        assert time.monotonic() < deadline and proc.poll() is None, proc.stderr
+        time.sleep(0.05)
+
+
 def _serve_until_bound(args: list[str], port: int) -> tuple[int, str]:
     """Start ``serve`` with ``args``, wait until it holds ``port``, stop it: (exit, stderr)."""
     proc = subprocess.Popen(
@@ -73,17 +77,7 @@ def _serve_until_bound(args: list[str], port: int) -> tuple[int, str]:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        deadline = time.monotonic() + 30
-        while True:
-            probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            try:
-                probe.bind(("127.0.0.1", port))
-            except OSError:
-                break  # serve holds it
-            finally:
-                probe.close()
-            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr
-            time.sleep(0.05)
+        _wait_bound(proc, port)
     finally:
         proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=30)
