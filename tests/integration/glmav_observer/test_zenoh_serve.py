@@ -383,4 +383,6 @@ def test_two_services_on_one_router_are_told_apart_and_a_namesake_refuses(
     assert {v["service_id"] for v in samples} == set(ports)
     for sid in ports:
         seqs = [v["seq"] for v in samples if v["service_id"] == sid]
-        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), sid
+        # in order, none twice (the simulator sends truth, so every estimate is built for
+        # the summary's RMSE and the sink gets its 50 Hz of them: seq may skip)
+        assert seqs == sorted(set(seqs)), sid
