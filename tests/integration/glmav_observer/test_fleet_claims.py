@@ -213,7 +213,9 @@ def test_a_killed_service_hands_its_vehicles_over_within_3_s(
     try:
         for sid, port in zip(SERVICES, ports, strict=True):
             services[sid] = subprocess.Popen(
-                [OBS, "serve", "--claim", "--workers", "1", "--zenoh", str(zcfg),
+                # --full-rate: the seed's check below compares the victim's record at the
+                # state's time, so it wants one every IMU step (4 ms), not active's 50 Hz
+                [OBS, "serve", "--claim", "--workers", "1", "--zenoh", str(zcfg), "--full-rate",
                  "--config", str(_service_toml(tmp_path, sid)),
                  "--link", f"udpin:127.0.0.1:{port}"],
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
