@@ -292,7 +292,9 @@ Record = VelocityRecord | HealthRecord | TruthRecord | MeasurementRecord | Refer
 def flatten(record: Record) -> dict[str, Any]:
     """One flat row: lists become ``name_<axis>`` columns, nested dicts ``name.key``."""
     row: dict[str, Any] = {}
-    for key, value in record.to_dict().items():
+    for key, raw in record.to_dict().items():
+        # the same columns whether or not a record has a σ per axis
+        value = [None, None, None] if raw is None and key == "sigma_ned_mps" else raw
         if isinstance(value, list) and len(value) == 3 and key.endswith(("_mps", "_m", "_rad")):
             suffixes = ("u", "v", "w") if "body" in key else ("n", "e", "d")
             if key == "euler_rad":

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import lzma
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -20,9 +22,11 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
+from glmav_observer.publish.rerun import TIMELINE, read_recording
 from glmav_observer.records import HealthRecord, Record, TruthRecord, VelocityRecord
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
+BIN = Path(sys.executable).parent
 
 
 class _Collect:
@@ -179,3 +183,36 @@ def test_outage_flags_every_axis_from_the_first_missed_period(
     ok, truth = interpolate_truth(t, tt, vt)
     inside = np.abs(v[ok] - truth[ok]) <= 2.0 * sig[ok]
     assert (inside.mean(axis=0) >= 0.95).all(), inside.mean(axis=0)
+
+
+@pytest.mark.timeout(240)
+def test_outage_sigma_reaches_the_rerun_recording(tmp_path: Path) -> None:
+    """The outage's σ per axis is plotted: ``replay --rrd`` of the log without its
+    LOCAL_POSITION_NED for 10 s, read back."""
+    t_on, t_off = 95.0, 105.0
+    tlog, rrd, jsonl = tmp_path / "outage.tlog", tmp_path / "o.rrd", tmp_path / "o.jsonl"
+    data = lzma.decompress((DATA / "a_quad_wind.tlog.xz").read_bytes())
+    with tlog.open("wb") as f:
+        for r in iter_tlog(data, FrameCounters()):
+            m = r.msg
+            if m.get_type() == "LOCAL_POSITION_NED" and t_on <= m.time_boot_ms * 1e-3 < t_off:
+                continue
+            f.write(r.t_host_us.to_bytes(8, "big") + m.get_msgbuf())
+    subprocess.run(
+        [str(BIN / "glmav-observer"), "replay", str(tlog), "--no-progress", "--rrd", str(rrd),
+         "--out", str(jsonl)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    rows = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    active = [r for r in rows if r.get("config") == "active" and r["sigma_ned_mps_n"] is not None]
+    # the file holds every active record: the flagged ones span the outage (10 s at 50 Hz)
+    assert len(active) > 400
+    assert all(r["dead_reckoned_axes"] == ["n", "e", "d"] for r in active)
+    rec = read_recording(rrd)
+    for a in "ned":
+        col = rec[f"/vehicle/1/active/sigma_ned_mps/{a}"]
+        # the recording keeps every active record (a file, no live decimation)
+        assert [v[0] for v in col["Scalars:scalars"]] == [r[f"sigma_ned_mps_{a}"] for r in active]
+        np.testing.assert_allclose(
+            col[TIMELINE], [r["t_boot_s"] for r in active], rtol=0, atol=1e-9
+        )  # (vehicle times pass through int64 nanoseconds)
