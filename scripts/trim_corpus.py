@@ -22,6 +22,8 @@ KEEP = frozenset(
         "HEARTBEAT",
         "ATTITUDE",
         "RAW_IMU",
+        "SCALED_IMU2",  # the vehicle's other IMUs: accelerometer faults (imu_monitor)
+        "SCALED_IMU3",
         "LOCAL_POSITION_NED",
         "SIM_STATE",
         "GPS_RAW_INT",

@@ -123,10 +123,16 @@ class FaultEvent:
     """
 
     axis: AxisName | Literal["body"]
-    kind: str  # "dropout" | "freeze" | "bias" | "noise" | "unaided" | "accel_bias"
+    kind: (
+        str  # "dropout" | "freeze" | "bias" | "noise" | "unaided" | "accel_bias" | "accel_bias_end"
+    )
     t_detect_s: float
     t_onset_s: float | None = None
     bias_body_mps2: Vec3 | None = None
+    #: the IMU an accelerometer event is on (1: the estimator's; None: not told apart)
+    imu: int | None = None
+    #: 1σ of ``bias_body_mps2`` per body axis, when the redundant IMUs measured it
+    bias_sigma_mps2: Vec3 | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -135,6 +141,8 @@ class FaultEvent:
             "t_detect_s": self.t_detect_s,
             "t_onset_s": self.t_onset_s,
             "bias_body_mps2": _vec(self.bias_body_mps2),
+            "imu": self.imu,
+            "bias_sigma_mps2": _vec(self.bias_sigma_mps2),
         }
 
 

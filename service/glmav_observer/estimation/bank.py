@@ -344,6 +344,15 @@ class ObserverBank:
         E = e_matrix(eul, self.e_form)
         self._x[i] = np.linalg.solve(E, v).tolist()
 
+    def set_attitude(self, euler_rad: Sequence[float]) -> None:
+        """The attitude now (a new ATTITUDE at the bank's time): the E the estimates are
+        rotated to NED with until the next step. The state (body frame) is unchanged;
+        the next step computes its own E from its inputs."""
+        if self.e_form == "exact":
+            self._E_last = e_flat(euler_rad[0], euler_rad[1], euler_rad[2])
+        else:
+            self._E_last = e_matrix(np.array(euler_rad), self.e_form)
+
     def reset(self, v_body_mps: ArrayLike | None = None) -> None:
         """Set every configuration to ``v_body_mps`` ((3,) or (4, 3), default zero)."""
         if v_body_mps is None:

@@ -43,6 +43,9 @@ class FaultDetector:
     reference_drifts: int = 0
     #: residual isolations withdrawn on a ramping residual (RAMP_LIMIT_MPS2)
     ramp_withdrawals: int = 0
+    #: the vehicle's redundant IMUs are compared (``imu_monitor``): they tell an
+    #: accelerometer fault themselves, so a common ramp of the residuals is the reference's
+    imus_redundant: bool = False
     #: per axis: the autopilot's velocity is unaided (used, not tested: :meth:`set_unaided`)
     unaided: list[bool] = field(default_factory=lambda: [False, False, False])
     #: (t, axis, residual, B flat 9) of every axis over the last change_window_s
@@ -125,11 +128,19 @@ class FaultDetector:
             # two velocity sensors failing at once is far less likely than one IMU or
             # attitude error seen on every axis: blame the IMU, withdraw the isolations
             _, db, t_c = classify_change(j0, list(self._recent), self._sigmas())
-            return self._rebase(t_s, t_s if math.isnan(t_c) else t_c, db, self.axes[j0].axis, v)
+            # (the redundant IMUs tell accelerometer changes: none here, no event)
+            db_or_none = None if self.imus_redundant else db
+            t_rebase = t_s if math.isnan(t_c) else t_c
+            return self._rebase(t_s, t_rebase, db_or_none, self.axes[j0].axis, v)
         if k0 is FaultKind.BIAS and self.fit.ref is not None and not self.fit.frozen_bias:
             kind, db, t_c = classify_change(j0, list(self._recent), self._sigmas())
             if kind == "undecided":
                 return v  # the tests fail again on the next sample, with more history
+            if kind == "accel" and self.imus_redundant:
+                # the vehicle's redundant IMUs tell an accelerometer fault themselves
+                # (imu_monitor): the residuals' common ramp is the reference's, restarted
+                # without an accelerometer event
+                kind = "offset"
             if kind == "offset":
                 self.reference_drifts += 1
                 return self._rebase(t_s, t_c, None, self.axes[j0].axis, v)
@@ -139,6 +150,14 @@ class FaultDetector:
             self.axes[j].isolate(t_s, kind_j)
             out[j] = AxisVerdict(False, v[j].residual_mps, v[j].test_ratio, self.axes[j].state)
         return (out[0], out[1], out[2])
+
+    def restart_reference(self) -> None:
+        """The estimator's IMU was corrected (its bias told by the redundant IMUs): the
+        reference restarts from the samples after the correction, every axis warms up."""
+        self.fit.drop_before(math.inf)
+        for ax in self.axes:
+            ax.rebase()
+        self._recent.clear()
 
     def _sigmas(self) -> tuple[float, float, float]:
         return (self.axes[0].sigma_r_mps, self.axes[1].sigma_r_mps, self.axes[2].sigma_r_mps)

@@ -68,6 +68,8 @@ class FdiConfig:
     #: ArduPilot's EKF on the tuning flights: 0.027-0.038 m/s horizontal (a_quad_wind,
     #: f_coax_clean, g_heli_clean, h_quad_gps_glitch), rounded up
     sigma_velocity_mps: float = 0.04
+    #: compare the vehicle's redundant IMUs (SCALED_IMU2/3) with its own (imu_monitor)
+    imu_monitor: bool = True
     sigma_bias_mps2: float = 0.03
     accel_noise_density: float = 4e-3
     min_imu_rate_hz: float = 5.0

@@ -64,6 +64,7 @@ from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.gain import FullGain
+from glmav_observer.estimation.imu_monitor import ImuConsistency, ImuEvent
 from glmav_observer.estimation.inputs import HeldInputs
 from glmav_observer.estimation.observer import G_MPS2, EForm
 from glmav_observer.estimation.outputs import RecordBuilder, merge_counters
@@ -77,12 +78,17 @@ from glmav_observer.ingest.samples import (
     ControlSample,
     ImuSample,
     Sample,
+    SecondaryImuSample,
     TruthSample,
     VelocitySample,
 )
 from glmav_observer.reads import READS_ALL, Reads
 from glmav_observer.records import NED_AXES, FaultEvent, Record, ReferenceFitSummary
 
+#: GPS velocities this far apart (vehicle s) tell which of two disagreeing IMUs is wrong:
+#: 0.3 m/s² of bias moves the dead reckoning 0.3 m/s in 1 s, several σ of a GPS's
+#: velocity (0.05-0.1 m/s) and of its lag's effect (0.1-0.2 s at ≤ 1 m/s² of change)
+RESOLVE_S = 1.0
 #: An ``accel_bias`` event stays in the health record's faults this long (vehicle s):
 #: it isolates nothing, but subscribers and the Rerun view must see it.
 ACCEL_EVENT_HOLD_S = 5.0
@@ -168,6 +174,10 @@ class VehicleEstimator:
         )
         #: the autopilot's word on its velocity's aiding (a vehicle fact: kept across restarts)
         self.drift = DriftAxes()
+        #: the vehicle's redundant IMUs compared (kept across restarts: sensor facts)
+        self.imus = ImuConsistency() if config.fdi.imu_monitor else None
+        #: (t, GPS v n e, A n e) at the first GPS sample after a two-IMU fault's onset
+        self._imu_anchor: tuple[float, tuple[float, float], tuple[float, float]] | None = None
         self._seed: EstimatorSeed | None = None
         #: vehicle s between a seed's state and the sample it was applied at (None: none)
         self.seed_age_s: float | None = None
@@ -220,6 +230,10 @@ class VehicleEstimator:
         if isinstance(s, AidingSample):
             self._aiding_sample(s)
             return out
+        if isinstance(s, SecondaryImuSample):
+            if self.imus is not None:
+                self.imus.secondary(s.instance, s.t_boot_s, s.f_body_mps2)
+            return out
         if isinstance(s, ControlSample):
             if self.aiding is not None:
                 self.aiding.hold_control(s.t_boot_s, s.servo_pwm_us)
@@ -237,11 +251,30 @@ class VehicleEstimator:
         if isinstance(s, AttitudeSample):
             inputs.euler_rad = s.euler_rad
             inputs.omega_att_radps = s.omega_body_radps
+            if self.t_bank_s is not None:
+                # the bank stepped to t under the previous attitude: the records built
+                # before its next step (an IMU sample stamped with the same time, as
+                # SCALED_IMU's ms are) rotate to NED with this one, not one sample old
+                self.bank.set_attitude(s.euler_rad)
             if self._seed is not None and self.t_bank_s is None:
                 self._start_from_seed(t)
         elif isinstance(s, ImuSample):
             self.streams.imu(t)
-            f_used = self.despike.filter(s.f_body_mps2)
+            f_raw = s.f_body_mps2
+            imus = self.imus
+            if imus is not None and imus.instances > 1:
+                corrected = imus.correction() is not None
+                for ev in imus.primary(t, f_raw):
+                    self._imu_event(ev)
+                b1 = imus.correction()
+                if b1 is not None and not corrected:
+                    # the reference fit learnt part of the bias before it was told: start
+                    # it again on the corrected IMU, once (not as a change at each step)
+                    self.fdi.restart_reference()
+                    self.counters["fdi_restart_imu_corrected"] += 1
+                if b1 is not None:  # IMU 1 is the faulty one: its bias taken out
+                    f_raw = (f_raw[0] - b1[0], f_raw[1] - b1[1], f_raw[2] - b1[2])
+            f_used = self.despike.filter(f_raw)
             if f_used is None:
                 self.counters["imu_spike_held"] += 1
                 if inputs.f_body_mps2 is None:
@@ -415,6 +448,9 @@ class VehicleEstimator:
             # and in the replay/serve summary
             self.counters["fdi_off_imu_too_slow"] += 1
         ints = inputs.ints()
+        imus = self.imus
+        if imus is not None and imus.instances > 1:
+            self.fdi.imus_redundant = imus.redundant()
         verdicts = self.fdi.update(t, s.v_ned_mps, inputs.a_int, ints, imu_hz)
         self.streams.measurement(t)
         f_mean = inputs.f_mean_since_measurement()
@@ -468,11 +504,59 @@ class VehicleEstimator:
         σ; the FDI does not test them (an unaided estimate drifts with the IMU) and warms
         up again when they are aided."""
         drift = self.drift
+        if s.gps_v_ne_mps is not None and self.imus is not None and self.t_bank_s is not None:
+            self._resolve_imu(s.t_boot_s, s.gps_v_ne_mps)
         if s.source == "EKF_STATUS_REPORT":
             drift.on_ekf(s.t_boot_s, s.horizontal_aided, s.vertical_aided)
         else:
             drift.on_gps(s.t_boot_s, s.horizontal_aided)
         self._apply_unaided()
+
+    def _resolve_imu(self, t: float, gps_v_ne_mps: tuple[float, float]) -> None:
+        """Two IMUs disagree (difference D = f_2 − f_1): the GPS's own ground velocity
+        (GPS_RAW_INT, which no IMU touched: the autopilot's velocity follows its IMU for
+        seconds before its GPS corrects it) tells which one is wrong. If IMU 1 (the one
+        integrated here) is, its dead reckoning drifts from the GPS by E D per second:
+        r = Δv_gps − ΔA ≈ (E D) Δt on n and e; if IMU 2 is, r stays near 0. The nearer
+        side (r's projection on (E D) Δt above or below 1/2) is taken after ``RESOLVE_S``;
+        a bias seen only on the vertical (|E D| horizontal below the IMU floor) is not."""
+        imus = self.imus
+        assert imus is not None
+        pending = imus.unresolved()
+        if pending is None:
+            self._imu_anchor = None
+            return
+        t_onset, d = pending
+        a_int = self.inputs.a_int
+        if self._imu_anchor is None or self._imu_anchor[0] < t_onset:
+            self._imu_anchor = (t, gps_v_ne_mps, (a_int[0], a_int[1]))
+            return
+        t0, v0, a0 = self._imu_anchor
+        dt = t - t0
+        if dt < RESOLVE_S:
+            return
+        e_d = rotate_flat(self.bank.e_last_flat(), d)
+        r = [(gps_v_ne_mps[k] - v0[k]) - (a_int[k] - a0[k]) for k in range(2)]
+        h2 = e_d[0] ** 2 + e_d[1] ** 2
+        if h2 < imus.cfg.floor_mps2**2 or not all(math.isfinite(x) for x in r):
+            return
+        proj = (r[0] * e_d[0] + r[1] * e_d[1]) / (dt * h2)
+        imus.resolve(1 if proj > 0.5 else 2)
+        self.counters[f"imu_fault_on_imu{1 if proj > 0.5 else 2}_by_gps"] += 1
+        self._imu_anchor = None
+
+    def _imu_event(self, ev: ImuEvent) -> None:
+        """An accelerometer fault told by the redundant IMUs (:mod:`.imu_monitor`): one
+        ``accel_bias`` event at its onset, one ``accel_bias_end`` at its end."""
+        kind = "accel_bias" if ev.kind == "onset" else "accel_bias_end"
+        self.faults.append(
+            FaultEvent(
+                "body", kind, ev.t_detect_s, ev.t_onset_s, ev.bias_body_mps2, ev.instance,
+                ev.sigma_mps2,
+            )
+        )  # fmt: skip
+        self.counters[f"imu_{kind}"] += 1
+        self.out.decision()
 
     def _apply_unaided(self) -> None:
         unaided = self.drift.unaided()

@@ -5,6 +5,8 @@ Units at the edge (MAVLink common.xml):
 - ``ATTITUDE``: rad, rad/s, ``time_boot_ms``.
 - ``HIGHRES_IMU``: m/s², rad/s, ``time_usec``.
 - ``SCALED_IMU``: mG (1e-3 g, g = 9.80665 m/s²), mrad/s, ``time_boot_ms``.
+- ``SCALED_IMU2``, ``SCALED_IMU3``: the same units; another IMU of the vehicle, compared
+  with the estimator's (:class:`SecondaryImuSample`), not integrated.
 - ``RAW_IMU``: raw counts, ``time_usec``; the scales come from configuration, per
   vehicle (ArduPilot sends mG and mrad/s, the defaults of :class:`RawImuScale`).
 - ``LOCAL_POSITION_NED``: m, m/s (NED), ``time_boot_ms``.
@@ -32,6 +34,7 @@ from glmav_observer.ingest.samples import (
     ImuSample,
     ImuSource,
     Sample,
+    SecondaryImuSample,
     TruthSample,
     Vec3,
     VelocitySample,
@@ -49,6 +52,8 @@ SAMPLE_MESSAGES: frozenset[str] = frozenset(
         "RAW_IMU",
         "SCALED_IMU",
         "HIGHRES_IMU",
+        "SCALED_IMU2",
+        "SCALED_IMU3",
         "LOCAL_POSITION_NED",
         "SIM_STATE",
         "EKF_STATUS_REPORT",
@@ -70,6 +75,8 @@ EKF_VELOCITY_VERT = 4
 EKF_UNINITIALIZED = 1024
 #: GPS_RAW_INT fix types below this give no velocity (``GPS_FIX_TYPE_3D_FIX``).
 GPS_FIX_3D = 3
+#: GPS_RAW_INT's ``vel`` / ``cog`` when unknown
+UINT16_UNKNOWN = 65535
 
 
 class TimeKind(Enum):
@@ -167,6 +174,10 @@ def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
         fw = (msg.xgyro * kw, msg.ygyro * kw, msg.zgyro * kw)
         f, w = _imu_vectors(_finite3(fa, f"{name} acc"), _finite3(fw, f"{name} gyro"), name)
         return ImuSample(sysid, t_boot_s, f, w, src)
+    if name in ("SCALED_IMU2", "SCALED_IMU3"):
+        fa = (msg.xacc * MG_TO_MPS2, msg.yacc * MG_TO_MPS2, msg.zacc * MG_TO_MPS2)
+        f, _ = _imu_vectors(_finite3(fa, f"{name} acc"), (0.0, 0.0, 0.0), name)
+        return SecondaryImuSample(sysid, t_boot_s, 2 if name == "SCALED_IMU2" else 3, f)
     if name == "LOCAL_POSITION_NED":
         pos = (float(msg.x), float(msg.y), float(msg.z))
         vel = (float(msg.vx), float(msg.vy), float(msg.vz))
@@ -196,6 +207,11 @@ def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
     if name == "GPS_RAW_INT":
         fix = int(msg.fix_type)
         ok = fix >= GPS_FIX_3D
+        v_ne = None
+        vel_cmps, cog_cdeg = int(msg.vel), int(msg.cog)
+        if ok and UINT16_UNKNOWN not in {vel_cmps, cog_cdeg}:
+            speed_mps, course_rad = vel_cmps * 0.01, math.radians(cog_cdeg * 0.01)
+            v_ne = (speed_mps * math.cos(course_rad), speed_mps * math.sin(course_rad))
         # the GPS says nothing about the vertical velocity an autopilot may take from a baro
-        return AidingSample(sysid, t_boot_s, name, ok, None, "" if ok else f"gps_fix_{fix}")
+        return AidingSample(sysid, t_boot_s, name, ok, None, "" if ok else f"gps_fix_{fix}", v_ne)
     raise ConversionError("unknown_message", f"{name} is not a sample message")

@@ -78,6 +78,9 @@ class AidingSample:
     horizontal_aided: bool | None
     vertical_aided: bool | None
     reason: str
+    #: GPS_RAW_INT's ground velocity (north, east; m/s) with a 3D fix: a velocity no IMU
+    #: of the vehicle touched (``VehicleEstimator._resolve_imu``); None otherwise
+    gps_v_ne_mps: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,4 +95,24 @@ class ControlSample:
     servo_pwm_us: tuple[int, ...]
 
 
-Sample = AttitudeSample | ImuSample | VelocitySample | TruthSample | AidingSample | ControlSample
+@dataclass(frozen=True, slots=True)
+class SecondaryImuSample:
+    """``SCALED_IMU2`` / ``SCALED_IMU3``: the specific force of another IMU on the vehicle
+    (``instance`` 2 or 3), compared with the estimator's own (``estimation.imu_monitor``),
+    never integrated."""
+
+    sysid: int
+    t_boot_s: float
+    instance: int
+    f_body_mps2: Vec3
+
+
+Sample = (
+    AttitudeSample
+    | ImuSample
+    | VelocitySample
+    | TruthSample
+    | AidingSample
+    | ControlSample
+    | SecondaryImuSample
+)

@@ -131,10 +131,22 @@ VELOCITY: Schema = _record(
 _FAULT: Schema = _object(
     {
         "axis": {"enum": [*_AXES, "body"]},
-        "kind": {"enum": ["dropout", "freeze", "bias", "noise", "unaided", "accel_bias"]},
+        "kind": {
+            "enum": [
+                "dropout",
+                "freeze",
+                "bias",
+                "noise",
+                "unaided",
+                "accel_bias",
+                "accel_bias_end",
+            ]
+        },
         "t_detect_s": _TIME,
         "t_onset_s": {"type": ["number", "null"]},
         "bias_body_mps2": {"anyOf": [_VEC3, {"type": "null"}]},
+        "imu": {"type": ["integer", "null"], "minimum": 1},
+        "bias_sigma_mps2": {"anyOf": [_VEC3, {"type": "null"}]},
     }
 )
 
