@@ -106,7 +106,8 @@ def test_each_log_replays_or_names_what_it_lacks(
     if entry["reference"]:
         assert s.sources["ekf"].startswith(entry["reference"]) and s.rates_hz.get("ekf")
     else:  # the reference topic is there, with no valid sample
-        assert "ekf" not in s.rates_hz and s.dropped.get("ekf_invalid", 0) > 0
+        assert "ekf" not in s.rates_hz and "ekf" not in s.sources
+        assert s.dropped.get("ekf_invalid", 0) > 0
     if not entry.get("bounds"):
         return
     # the bounds apply: the log has what they need (the matrix cannot claim otherwise)
@@ -116,3 +117,51 @@ def test_each_log_replays_or_names_what_it_lacks(
         assert not ok, f"{entry['file']} is now within the bounds ({figures}): update the matrix"
     else:
         assert ok, f"{entry['file']}: {figures}"
+
+
+#: the matrix's columns in batch's summary (issue 33: log, firmware, vehicle, duration,
+#: rates, reference, RMSE, isolations, refusals)
+MATRIX_COLUMNS = (
+    "log_id", "vehicle", "vehicle_type", "duration_s", "rate_imu_hz", "rate_gps_hz",
+    "reference", "rmse_full_in_flight_n", "rmse_full_in_flight_e", "rmse_full_in_flight_d",
+    "isolations", "ekf_velocity_rejections", "refusal",
+)  # fmt: skip
+
+
+def test_batch_over_mixed_logs_reports_every_one_with_the_matrix_columns(
+    matrix_logs: Path, tmp_path: Path
+) -> None:
+    import csv
+
+    from glmav_observer.commands.batch import run_batch
+
+    names = [
+        "copter-3.3-log171.bin", "px4-1.15-sitl-events.ulg", "plane-4.2.3-pilot_0004.BIN",
+        "tlog-plane-2014-test.tlog",
+    ]  # fmt: skip
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    for n in names:
+        (folder / n).write_bytes((matrix_logs / n).read_bytes())
+    # a log cut inside a message (a full card, a pulled battery): its whole messages replay
+    (folder / "cut.bin").write_bytes((matrix_logs / names[0]).read_bytes()[:200_001])
+    # and a file that is no log at all, named explicitly: reported, the batch goes on
+    (folder / "notes.bin").write_bytes(b"flight notes, not a log\n" * 10)
+    rows = run_batch(sorted(folder.iterdir()), tmp_path / "out", workers=1)
+    by_id = {r["log_id"]: r for r in rows}
+    assert sorted(by_id) == sorted([*names, "cut.bin", "notes.bin"])
+    with (tmp_path / "out" / "summary.csv").open() as f:
+        header = next(csv.reader(f))
+    assert set(MATRIX_COLUMNS) <= set(header)
+    ok = by_id["copter-3.3-log171.bin"]
+    assert ok["vehicle"] == "APM:Copter V3.3-dev" and ok["vehicle_type"] == "multirotor"
+    assert ok["reference"] == "EKF1 core 0" and ok["ekf_velocity_rejections"] == 43
+    assert ok["isolations"] == 5 and ok["rmse_full_in_flight_e"] > 0.3  # as the matrix says
+    assert by_id["px4-1.15-sitl-events.ulg"]["vehicle"] == "PX4 v1.15.0"
+    refused = by_id["plane-4.2.3-pilot_0004.BIN"]
+    assert "unsupported: this log has no IMU data" in refused["refusal"]
+    assert by_id["tlog-plane-2014-test.tlog"]["error"] is None
+    cut = by_id["cut.bin"]
+    assert cut["error"] is None and cut["vehicle"] == "APM:Copter V3.3-dev"
+    assert 0 < cut["duration_s"] < ok["duration_s"]
+    assert "not a log this reads" in by_id["notes.bin"]["error"]

@@ -134,7 +134,8 @@ def read_ulog(path: str | Path) -> LogStreams:
             s.drop("ekf_invalid", int((~valid).sum()))
             ok = valid & finite_rows("ekf", s, t, v)
             s.t_ekf_s, s.v_ekf_ned_mps, s.p_ekf_ned_m = sort_by_time(t[ok], v[ok], p[ok])
-            s.sources["ekf"] = "vehicle_local_position"
+            if len(s.t_ekf_s):
+                s.sources["ekf"] = "vehicle_local_position"
         est = _topic(ulog, "estimator_status")
         if est is not None and "vel_test_ratio" in est:
             t = np.asarray(est["timestamp"], dtype=np.float64) * 1e-6
