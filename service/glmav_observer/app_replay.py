@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from glmav_observer.app import Service
@@ -83,6 +83,20 @@ class LogReplaySummary:
     reference_samples: int
     #: the log's first time stamp (s, autopilot clock)
     t_start_s: float = 0.0
+    #: the airframe (multirotor, helicopter, plane, vtol, rover, boat, submarine, unknown)
+    vehicle_type: str = "unknown"
+    #: as ``rmse_vs_reference_ned_mps``, over the reference samples taken in flight only
+    #: (:func:`~glmav_observer.ingest.logfiles.streams.in_flight_mask`)
+    rmse_vs_reference_in_flight_ned_mps: dict[str, tuple[float, float, float] | None] = field(
+        default_factory=dict
+    )
+    reference_samples_in_flight: int = 0
+    #: the EKF's velocity innovation test ratios above 1 (rejected GPS velocities); None
+    #: when the log has no innovation test ratio
+    ekf_velocity_innovation_failures: int | None = None
+    #: the GPS's rate from its median interval (Hz; a 5 Hz receiver that drops a fix
+    #: now and then still reads 5), 0 without GPS
+    gps_nominal_rate_hz: float = 0.0
 
     @property
     def vehicle_summary(self) -> VehicleSummary | None:
@@ -93,7 +107,7 @@ class LogReplaySummary:
             f"{k} {v:.1f} Hz ({self.sources.get(k, '?')})" for k, v in self.rates_hz.items()
         )
         lines = [
-            f"{self.format} log: {self.vehicle}, {self.duration_s:.1f} s",
+            f"{self.format} log: {self.vehicle} ({self.vehicle_type}), {self.duration_s:.1f} s",
             f"rates: {rates}",
             f"velocity measurement: {self.velocity_source}"
             + (
@@ -114,6 +128,19 @@ class LogReplaySummary:
                     f"the EKF's velocity ({self.sources.get('ekf', '?')})",
                     self.rmse_vs_reference_ned_mps,
                 )
+            )
+        if self.reference_samples_in_flight:
+            tables.append(
+                (
+                    f"the EKF's velocity in flight ({self.reference_samples_in_flight} samples)",
+                    self.rmse_vs_reference_in_flight_ned_mps,
+                )
+            )
+        if self.ekf_velocity_innovation_failures is not None:
+            lines.append(
+                f"the EKF's velocity innovation failures (test ratio > 1, "
+                f"{self.sources.get('ekf_innovations', '?')}): "
+                f"{self.ekf_velocity_innovation_failures}"
             )
         if not tables:
             lines.append("no truth and no reference: no RMSE")
@@ -155,6 +182,7 @@ def replay_flight_log(
     import numpy as np
 
     from glmav_observer.ingest.logfiles import LOG_SYSID, VELOCITY_SOURCES, read_flight_log
+    from glmav_observer.ingest.logfiles.streams import in_flight_mask
     from glmav_observer.ingest.rates import RateMonitor
     from glmav_observer.ingest.samples import TruthSample
     from glmav_observer.records import ReferenceRecord
@@ -179,6 +207,15 @@ def replay_flight_log(
             skip_s=config.estimation.metrics_skip_s,
             max_gap_s=max(TRUTH_MAX_GAP_S, 3.0 * ref_dt_s),
         )
+        # the same over the reference samples taken in flight: a gap (on the ground)
+        # is wider than max_gap_s, so no estimate on the ground is scored
+        flying = in_flight_mask(
+            log.t_reference_s, log.v_reference_ned_mps, log.streams.p_ekf_ned_m
+        ).tolist()
+        ref_err_flight = TruthScorer(
+            skip_s=config.estimation.metrics_skip_s,
+            max_gap_s=max(TRUTH_MAX_GAP_S, 3.0 * ref_dt_s),
+        )
         names = {"AttitudeSample": "attitude", "ImuSample": "imu", "VelocitySample": "velocity"}
         n = len(log.samples)
         step = max(1, n // 200)
@@ -191,6 +228,8 @@ def replay_flight_log(
                 tr, vr = t_ref[i_ref], v_ref[i_ref]
                 out.append(ReferenceRecord(sysid, tr, (vr[0], vr[1], vr[2]), ref_source, i_ref + 1))
                 ref_err.add_truth(tr, (vr[0], vr[1], vr[2]))
+                if flying[i_ref]:
+                    ref_err_flight.add_truth(tr, (vr[0], vr[1], vr[2]))
                 i_ref += 1
             if out:
                 service._publish(out)
@@ -205,6 +244,7 @@ def replay_flight_log(
             for r in recs:
                 if isinstance(r, VelocityRecord):
                     ref_err.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
+                    ref_err_flight.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
             if recs:
                 service._publish(recs)
             if progress is not None and k % step == 0:
@@ -229,4 +269,19 @@ def replay_flight_log(
         rmse_vs_reference_ned_mps={c: ref_err.rmse().get(c) for c in (*CONFIGS, "active")},
         reference_samples=ref_err.truth_samples,
         t_start_s=log.streams.span_s()[0],
+        vehicle_type=log.streams.vehicle_type,
+        rmse_vs_reference_in_flight_ned_mps={
+            c: ref_err_flight.rmse().get(c) for c in (*CONFIGS, "active")
+        },
+        reference_samples_in_flight=ref_err_flight.truth_samples,
+        ekf_velocity_innovation_failures=(
+            int((log.streams.ekf_vel_test_ratio > 1.0).sum())
+            if "ekf_innovations" in log.streams.sources
+            else None
+        ),
+        gps_nominal_rate_hz=(
+            1.0 / float(np.median(np.diff(log.streams.t_gps_s)))
+            if len(log.streams.t_gps_s) > 2
+            else 0.0
+        ),
     )

@@ -99,7 +99,7 @@ def process_log(
     """
     from glmav_observer.app_replay import replay_flight_log, replay_tlog
     from glmav_observer.config import load_config
-    from glmav_observer.ingest.logfiles import LogError, detect_format
+    from glmav_observer.ingest.logfiles import LogError, UnsupportedLogError, detect_format
     from glmav_toml import ConfigError
 
     row: dict[str, Any] = {"log_id": log_id, "path": path, "error": None}
@@ -126,6 +126,12 @@ def process_log(
                 velocity_source=fl.velocity_source,
                 gps_delay_ms=round(fl.gps_delay_s * 1e3, 1),
                 gps_delay_source=fl.gps_delay_source,
+                vehicle_type=fl.vehicle_type,
+                reference=fl.sources.get("ekf"),
+                ekf_velocity_rejections=fl.ekf_velocity_innovation_failures,
+            )
+            row.update(
+                _rmse_row("rmse_full_in_flight", fl.rmse_vs_reference_in_flight_ned_mps.get("full"))
             )
             truth = v.rmse_ned_mps.get("active") if v is not None and v.truth_samples else None
             ref = fl.rmse_vs_reference_ned_mps.get("active")
@@ -136,6 +142,7 @@ def process_log(
         switches = v.switches if v is not None else []
         # fault times in s into the log, as replay prints them (a SITL PX4 clock reads ~1.7e9 s)
         row["faults"] = _fault_text(faults, t_start)
+        row["isolations"] = len(faults)
         row["switches"] = len(switches)
         row["records"] = len(sink.records)
         table = _table(sink.records, log_id, str(row.get("vehicle", "")))
@@ -143,6 +150,8 @@ def process_log(
             sink.records, faults, switches, f"{log_id}: {row.get('vehicle', '')}", t_start
         )
         return {"row": row, "table": table, "png": png}
+    except UnsupportedLogError as err:  # a readable log lacking a stream: the matrix's refusal
+        row["error"] = row["refusal"] = str(err)
     except (LogError, ConfigError, OSError, ValueError) as err:
         row["error"] = str(err)
     except Exception as err:  # a log that breaks a library: reported, the batch goes on

@@ -183,10 +183,10 @@ def _html(results: list[dict[str, Any]]) -> str:
     """The report: a compact table (every column is in summary.csv) and a plot per log."""
     esc = html.escape
     head = (
-        "<th>log</th><th>format</th><th>vehicle</th><th>duration (s)</th>"
+        "<th>log</th><th>format</th><th>firmware</th><th>vehicle</th><th>duration (s)</th>"
         "<th>rates (Hz): att. / IMU / GPS / EKF / truth</th><th>velocity, GPS delay</th>"
-        "<th>faults isolated (s into the log)</th><th>switches</th>"
-        "<th>RMSE n / e / d (m/s), against</th>"
+        "<th>reference</th><th>faults isolated (s into the log)</th><th>switches</th>"
+        "<th>RMSE n / e / d (m/s), against</th><th>full vs EKF in flight n / e / d</th>"
     )
     body = []
     for r in results:
@@ -195,7 +195,7 @@ def _html(results: list[dict[str, Any]]) -> str:
         if row.get("error"):
             body.append(
                 f"<tr class='error'><td>{log}</td><td>{esc(_fmt(row.get('format')))}</td>"
-                f"<td colspan='7' class='text'>{esc(str(row['error']))}</td></tr>"
+                f"<td colspan='10' class='text'>{esc(str(row['error']))}</td></tr>"
             )
             continue
         rates = " / ".join(_fmt(row.get(f"rate_{k}_hz"), 1) or "-" for k in
@@ -204,13 +204,15 @@ def _html(results: list[dict[str, Any]]) -> str:
         if src == "gps":
             src += f", {_fmt(row.get('gps_delay_ms'), 0)} ms ({row.get('gps_delay_source')})"
         rmse = " / ".join(_fmt(row.get(f"rmse_active_{a}")) for a in "ned")
+        flight = " / ".join(_fmt(row.get(f"rmse_full_in_flight_{a}")) for a in "ned")
         body.append(
             f"<tr><td>{log}</td><td>{esc(_fmt(row.get('format')))}</td>"
-            f"<td>{esc(_fmt(row.get('vehicle')))}</td><td>{_fmt(row.get('duration_s'), 1)}</td>"
-            f"<td>{esc(rates)}</td><td>{esc(src)}</td>"
+            f"<td>{esc(_fmt(row.get('vehicle')))}</td><td>{esc(_fmt(row.get('vehicle_type')))}</td>"
+            f"<td>{_fmt(row.get('duration_s'), 1)}</td><td>{esc(rates)}</td><td>{esc(src)}</td>"
+            f"<td>{esc(_fmt(row.get('reference')) or 'none')}</td>"
             f"<td class='text'>{esc(row.get('faults') or 'none')}</td>"
             f"<td>{_fmt(row.get('switches'))}</td>"
-            f"<td>{esc(rmse)}, {esc(_fmt(row.get('rmse_basis')))}</td></tr>"
+            f"<td>{esc(rmse)}, {esc(_fmt(row.get('rmse_basis')))}</td><td>{esc(flight)}</td></tr>"
         )
     n_err = sum(1 for r in results if r["row"].get("error"))
     plots = []

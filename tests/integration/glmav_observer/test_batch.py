@@ -45,7 +45,7 @@ def test_process_pool_and_dask_cluster_give_the_same_dataset(
     with (pool_out / "summary.csv").open() as f:
         rows = {r["log_id"]: r for r in csv.DictReader(f)}
     assert set(rows) == {"copter.BIN", "corrupt.BIN", "px4.ulg"}
-    assert "no ATT, IMU or GPS messages" in rows["corrupt.BIN"]["error"]
+    assert "unsupported: this log has no ATT, AHR2, IMU or GPS" in rows["corrupt.BIN"]["error"]
     assert rows["copter.BIN"]["error"] == "" and rows["px4.ulg"]["error"] == ""
     assert rows["copter.BIN"]["rmse_basis"] == "truth"  # SIM2 in the ArduPilot SITL log
     assert rows["px4.ulg"]["rmse_basis"] == "reference"  # no truth in the PX4 log
@@ -59,7 +59,7 @@ def test_process_pool_and_dask_cluster_give_the_same_dataset(
     per_log = {lid: int(rows[lid]["records"]) for lid in ("copter.BIN", "px4.ulg")}
     counts = data.group_by("log_id").aggregate([("t_boot_s", "count")]).to_pylist()
     assert {c["log_id"]: c["t_boot_s_count"] for c in counts} == per_log
-    assert set(data.column("vehicle").to_pylist()) == {"ArduCopter V4.6.0-dev", "PX4 cb09dde6"}
+    assert set(data.column("vehicle").to_pylist()) == {"ArduCopter V4.6.0-dev", "PX4 v1.15.0"}
 
     report = (pool_out / "report.html").read_text()
     assert report.count("<img ") == 2  # a plot per replayed log, none for the corrupt one

@@ -38,7 +38,13 @@ from glmav_observer.ingest.logfiles.latency import (
     earth_acceleration_mps2,
     estimate_gps_delay_s,
 )
-from glmav_observer.ingest.logfiles.streams import F64, LogError, LogStreams, interp_euler
+from glmav_observer.ingest.logfiles.streams import (
+    F64,
+    LogError,
+    LogStreams,
+    UnsupportedLogError,
+    interp_euler,
+)
 from glmav_observer.ingest.samples import (
     AttitudeSample,
     ImuSample,
@@ -53,6 +59,7 @@ __all__ = [
     "LogError",
     "LogFormat",
     "LogStreams",
+    "UnsupportedLogError",
     "VelocitySource",
     "detect_format",
     "read_flight_log",
@@ -145,6 +152,27 @@ def read_streams(path: str | Path, fmt: LogFormat | None = None) -> tuple[LogFor
     raise LogError(f"{path}: a {fmt} is replayed through MAVLink ingest, not read as a flight log")
 
 
+def missing_streams(s: LogStreams, velocity_source: str) -> str:
+    """What the estimator needs that the log lacks, named with the messages looked for ("")."""
+    ulog = s.format == "ulog"
+    if len(s.t_imu_s) == 0:
+        return "IMU data (sensor_combined)" if ulog else "IMU data (IMU message)"
+    if len(s.t_att_s) == 0:
+        return "attitude (vehicle_attitude)" if ulog else "attitude (ATT or AHR2 message)"
+    if velocity_source == "gps" and len(s.t_gps_s) == 0:
+        where = "vehicle_gps_position or sensor_gps" if ulog else "GPS message"
+        why = ", ".join(f"{k} {v}" for k, v in s.dropped.items() if k.startswith("gps_"))
+        return (
+            f"GPS velocity with a 3D fix ({where}{': ' + why if why else ''}); "
+            "--velocity-source ekf measures with the EKF's velocity instead"
+        )
+    if velocity_source == "ekf" and len(s.t_ekf_s) == 0:
+        return (
+            "EKF velocity (vehicle_local_position)" if ulog else "EKF velocity (XKF1, NKF1 or EKF1)"
+        )
+    return ""
+
+
 def read_flight_log(
     path: str | Path,
     velocity_source: VelocitySource = "gps",
@@ -155,12 +183,9 @@ def read_flight_log(
     if velocity_source not in VELOCITY_SOURCES:
         raise ValueError(f"velocity source must be gps or ekf, got {velocity_source!r}")
     fmt, s = read_streams(path)
-    if len(s.t_imu_s) == 0 or len(s.t_att_s) == 0:
-        raise LogError(f"{path}: no IMU or no attitude data: nothing to estimate with")
-    t_meas = s.t_gps_s if velocity_source == "gps" else s.t_ekf_s
-    if len(t_meas) == 0:
-        what = "GPS velocity with a 3D fix" if velocity_source == "gps" else "EKF velocity"
-        raise LogError(f"{path}: no {what}: nothing to measure with (--velocity-source)")
+    missing = missing_streams(s, velocity_source)
+    if missing:
+        raise UnsupportedLogError(path, missing)
     if velocity_source == "ekf":
         delay, source = 0.0, "not used"
     elif gps_delay_s is not None:

@@ -21,6 +21,14 @@ class LogError(ValueError):
     """A log that cannot be read: the message names the file and the reason."""
 
 
+class UnsupportedLogError(LogError):
+    """A readable log that lacks what the estimator needs: "unsupported: this log has no X"."""
+
+    def __init__(self, path: object, missing: str) -> None:
+        super().__init__(f"{path}: unsupported: this log has no {missing}")
+        self.missing = missing
+
+
 def empty3() -> F64:
     return np.zeros((0, 3))
 
@@ -32,6 +40,8 @@ class LogStreams:
     format: str  # "dataflash" | "ulog"
     vehicle: str  # e.g. "ArduCopter V4.6.0-dev", "PX4 cb09dde6"
     params: dict[str, float]
+    #: the airframe: multirotor, helicopter, plane, vtol, rover, boat, submarine or unknown
+    vehicle_type: str = "unknown"
     t_att_s: F64 = field(default_factory=lambda: np.zeros(0))
     euler_rad: F64 = field(default_factory=empty3)
     t_imu_s: F64 = field(default_factory=lambda: np.zeros(0))
@@ -49,6 +59,9 @@ class LogStreams:
     v_truth_ned_mps: F64 = field(default_factory=empty3)
     t_truth_att_s: F64 = field(default_factory=lambda: np.zeros(0))
     euler_truth_rad: F64 = field(default_factory=empty3)
+    #: the EKF's velocity innovation test ratio (> 1: the EKF rejected a GPS velocity)
+    t_ekf_vel_ratio_s: F64 = field(default_factory=lambda: np.zeros(0))
+    ekf_vel_test_ratio: F64 = field(default_factory=lambda: np.zeros(0))
     #: samples dropped while reading, by reason (no fix, non-finite value, ...)
     dropped: dict[str, int] = field(default_factory=dict)
     #: names of the log's messages/topics each stream came from (for the summary)
@@ -103,4 +116,36 @@ def interp_euler(t_query: F64, t_att: F64, euler: F64) -> F64:
     unwrapped[:, 2] = np.unwrap(euler[:, 2])
     out = np.stack([np.interp(t_query, t_att, unwrapped[:, k]) for k in range(3)], axis=1)
     out[:, 2] = (out[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    return out
+
+
+#: In flight: the reference's speed above this (m/s) ...
+IN_FLIGHT_SPEED_MPS = 1.0
+#: ... or its height above the log's first reference height above this (m) ...
+IN_FLIGHT_HEIGHT_M = 2.0
+#: ... widened by this on each side (s), so that a hover between two legs stays in flight
+IN_FLIGHT_MARGIN_S = 2.0
+
+
+def in_flight_mask(t_s: F64, v_ned_mps: F64, p_ned_m: F64) -> NDArray[np.bool_]:
+    """Reference samples taken in flight (moving or off the ground), see the constants.
+
+    A log carries no common "airborne" flag across firmware generations; the EKF's own
+    speed and height do, for every vehicle this reads (a plane on its take-off run
+    counts as flying: it moves)."""
+    n = len(t_s)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    speed = np.linalg.norm(v_ned_mps, axis=1)
+    height = -(p_ned_m[:, 2] - p_ned_m[0, 2]) if len(p_ned_m) == n else np.zeros(n)
+    core: NDArray[np.bool_] = (speed > IN_FLIGHT_SPEED_MPS) | (
+        np.nan_to_num(height) > IN_FLIGHT_HEIGHT_M
+    )
+    if not core.any():
+        return core
+    t_core = t_s[core]
+    i = np.searchsorted(t_core, t_s)
+    before = np.abs(t_s - t_core[np.clip(i - 1, 0, len(t_core) - 1)])
+    after = np.abs(t_core[np.clip(i, 0, len(t_core) - 1)] - t_s)
+    out: NDArray[np.bool_] = np.minimum(before, after) <= IN_FLIGHT_MARGIN_S
     return out
