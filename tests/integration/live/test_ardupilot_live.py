@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import os
 import shlex
+import signal
 import socket
 import subprocess
 import sys
@@ -35,7 +36,10 @@ import pytest
 
 from glmav_observer.evaluation import errors_against_truth, rmse
 
-pytestmark = pytest.mark.live
+#: the flight takes about 6 min of real time (8 on a loaded machine); the suite's 300 s
+#: default timeout does not fit it
+FLIGHT_TIMEOUT_S = 1500
+pytestmark = [pytest.mark.live, pytest.mark.timeout(FLIGHT_TIMEOUT_S + 120)]
 
 ROOT = Path(__file__).resolve().parents[3]
 FLY = ROOT / "scripts" / "ardupilot_sitl" / "fly.py"
@@ -214,8 +218,15 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> LiveFlight:
         shlex.join(serve),
     ]
     env = {**os.environ, "RUNS": str(out / "runs")}
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1500, check=False)
-    (out / "fly.log").write_text(proc.stdout + proc.stderr)
+    with (out / "fly.log").open("w") as log:
+        proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            proc.wait(FLIGHT_TIMEOUT_S)
+        except BaseException:
+            # SIGINT: the driver's own clean-up stops the service and SITL it started
+            proc.send_signal(signal.SIGINT)
+            proc.wait(60)
+            raise
     sidecar = json.loads((out / "live.json").read_text())
     assert proc.returncode == 0 and sidecar["result"] == "ok", (
         f"the flight failed ({sidecar['result']}); log: {out / 'fly.log'}"
