@@ -8,11 +8,18 @@ times. The test suite runs 15 of these cases; this is the table. The 15 cases of
 onset share the replay before the onset (``evaluation.replay_cases``, equal to separate
 replays bit for bit): 2 min 41 s on 2 cores, from about 5 min with one replay per case.
 
-    python -m benchmarks.corpus [--quick]    # writes results/corpus.json, docs/benchmarks/corpus.md
+The held-out flights (``tests/data/ardupilot_sitl_heldout``: other frames, winds, speeds,
+IMU rates and faults) are replayed the same way and printed next to the tuning flights,
+with the best-fit lag of the estimate and of the autopilot against truth. They are never
+tuned on (docs/observer.md, "The held-out set"); no goal below reads them.
+
+    python -m benchmarks.corpus [--quick] [--flights-only]
+    # writes results/corpus.json, docs/benchmarks/corpus.md
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -20,9 +27,15 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from benchmarks.common import format_table, goal, main_for
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardupilot_sitl"
+HELDOUT = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardupilot_sitl_heldout"
+#: lags tried for the best fit against truth: -50..+150 ms in 1 ms steps (the estimate and
+#: the autopilot lag truth by 0-40 ms; a fit at either end of the range is reported as such)
+LAGS_S = np.arange(-0.050, 0.1505, 0.001)
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "corpus.md"
 CLEAN = ("a_quad_wind", "f_coax_clean", "g_heli_clean", "h_quad_gps_glitch")
 KINDS: tuple[tuple[str, float], ...] = (
@@ -37,20 +50,64 @@ LENGTH_S = 10.0
 AXIS_KINDS = ("dropout", "freeze", "bias", "noise", "unaided")
 
 
-def _windows(name: str) -> list[tuple[float, float]]:
-    side = json.loads((DATA / f"{name}.json").read_text())
-    return [(f["start_time_boot_ms"] / 1e3, f["end_time_boot_ms"] / 1e3) for f in side["faults"]]
+def _windows(name: str, data: Path = DATA) -> list[tuple[float, float]]:
+    side = json.loads((data / f"{name}.json").read_text())
+    return [
+        (f["start_time_boot_ms"] / 1e3, f["end_time_boot_ms"] / 1e3)
+        for f in side["faults"]
+        if f.get("end_time_boot_ms") is not None
+    ]
+
+
+def best_fit_lag_s(r: Any, config: str) -> float | None:
+    """The delay τ (s) that makes ``config``'s series fit truth best: the τ in
+    :data:`LAGS_S` minimising the summed squared error of v(t) against truth(t - τ), over
+    the samples scored for RMSE (from ``skip_s`` after the first estimate). Positive: the
+    series lags truth. None without samples."""
+    from glmav_observer.evaluation import interpolate_truth
+
+    s = r.collector.series.get(config)
+    if s is None or not s.t_s:
+        return None
+    t, v = s.arrays()
+    keep = t >= t[0] + r.skip_s
+    t, v = t[keep], v[keep]
+    tt, vt = r.collector.truth.arrays()
+    costs = []
+    for lag in LAGS_S:
+        ok, truth = interpolate_truth(t - lag, tt, vt)
+        costs.append(float(np.mean((v[ok] - truth[ok]) ** 2)) if ok.any() else np.inf)
+    return float(LAGS_S[int(np.argmin(costs))])
 
 
 def _r3(v: Any) -> list[float] | None:
     return None if v is None else [round(float(x), 4) for x in v]
 
 
-def _flight(name: str) -> dict[str, Any]:
+def _flight_in(args: tuple[str, Path]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """One flight's row (the tuning table's) and its side-by-side row (with lags)."""
     from glmav_observer.evaluation import replay
 
-    r = replay(DATA / f"{name}.tlog.xz")
-    windows = [(a, b + 3.0) for a, b in _windows(name)]
+    name, data = args
+    r = replay(data / f"{name}.tlog.xz")
+    windows = [(a, b + 3.0) for a, b in _windows(name, data)]
+    row = _flight_row(name, r, windows)
+    lag_full, lag_ap = best_fit_lag_s(r, "full"), best_fit_lag_s(r, "measurement")
+    side = {
+        "set": "held-out" if data == HELDOUT else "tuning",
+        "log": name,
+        "full": row["full"],
+        "active": row["active"],
+        "autopilot": row["measurement"],
+        "isolations": len([i for i in r.isolations if i.kind in AXIS_KINDS]),
+        "isolations_outside_windows": row["axis_isolations_outside_windows"],
+        "lag_full_ms": None if lag_full is None else round(lag_full * 1e3),
+        "lag_autopilot_ms": None if lag_ap is None else round(lag_ap * 1e3),
+    }
+    return row, side
+
+
+def _flight_row(name: str, r: Any, windows: list[tuple[float, float]]) -> dict[str, Any]:
     return {
         "log": name,
         "full": _r3(r.rmse_ned_mps.get("full")),
@@ -107,17 +164,32 @@ def _row(name: str, f: Any, r: Any) -> dict[str, Any]:
     }
 
 
-def run(quick: bool = False) -> dict[str, Any]:
-    flights = sorted(p.name.split(".")[0] for p in DATA.glob("*.tlog.xz"))
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--flights-only",
+        action="store_true",
+        help="replay the flights only (no injected velocity faults)",
+    )
+
+
+def _logs(data: Path) -> list[str]:
+    return sorted(p.name.split(".")[0] for p in data.glob("*.tlog.xz"))
+
+
+def run(quick: bool = False, flights_only: bool = False) -> dict[str, Any]:
+    flights = [(n, DATA) for n in _logs(DATA)] + [(n, HELDOUT) for n in _logs(HELDOUT)]
     logs = CLEAN[:1] if quick else CLEAN
     onsets = ONSETS_S[:1] if quick else ONSETS_S
-    jobs = [(n, t) for n in logs for t in onsets]  # each: 3 axes x KINDS, one shared prefix
-    workers = max(1, min(len(jobs), os.cpu_count() or 1))
+    jobs = [] if flights_only else [(n, t) for n in logs for t in onsets]
+    workers = max(1, min(max(len(jobs), 2), os.cpu_count() or 1))
     with ProcessPoolExecutor(workers) as ex:
-        flight_rows = list(ex.map(_flight, flights))
+        both = list(ex.map(_flight_in, flights))
         cases = [row for rows in ex.map(_cases_at, jobs) for row in rows]
+    flight_rows = [row for (row, side) in both if side["set"] == "tuning"]
+    side_by_side = [side for (_, side) in both]
     n_ok = sum(c["isolated"] for c in cases)
     in_time = sum(c["isolated"] and c["delay_s"] is not None and c["delay_s"] <= 0.5 for c in cases)
+    n_cases = max(1, len(cases))
     jumps = max([c["max_jump_mps"] for c in cases] + [f["max_jump_mps"] for f in flight_rows])
     extra = sum(c["extra_isolations"] for c in cases)
     clean = [f for f in flight_rows if f["log"] in ("a_quad_wind", "f_coax_clean", "g_heli_clean")]
@@ -128,10 +200,12 @@ def run(quick: bool = False) -> dict[str, Any]:
         goal("clean flights: worst `full` RMSE east (m/s)", worst[1], 0.05, higher_is_better=False),
         goal("clean flights: worst `full` RMSE down (m/s)", worst[2], 0.03, higher_is_better=False),
         goal("axis isolations outside fault windows (+3 s), all flights", outside, 0, higher_is_better=False),
-        goal("injected faults isolated right within 0.5 s (fraction)", in_time / len(cases), 1.0, higher_is_better=True),
+        goal("injected faults isolated right within 0.5 s (fraction)", in_time / n_cases, 1.0, higher_is_better=True),
         goal("injected faults: other isolations (count)", extra, 0, higher_is_better=False),
         goal("largest switch jump (m/s)", jumps, 0.05, higher_is_better=False),
     ]  # fmt: skip
+    if not cases:  # --flights-only: no injected-fault goals to judge
+        goals = [g for g in goals if "injected" not in g["goal"]]
     result = {
         "name": "corpus",
         "quick": quick,
@@ -140,8 +214,10 @@ def run(quick: bool = False) -> dict[str, Any]:
         "isolated": n_ok,
         "n_cases": len(cases),
         "goals": goals,
+        "side_by_side": side_by_side,
     }
-    write_doc(result)
+    if not flights_only:  # the doc is the whole table
+        write_doc(result)
     return result
 
 
@@ -178,7 +254,35 @@ def to_markdown(result: dict[str, Any]) -> str:
         "",
         format_table(cases),
     ]
+    if result.get("side_by_side"):
+        lines += ["", *side_by_side_markdown(result["side_by_side"])]
     return "\n".join(lines)
+
+
+def side_by_side_markdown(rows: list[dict[str, Any]]) -> list[str]:
+    """Tuning and held-out flights in one table (nothing is tuned on the held-out set)."""
+
+    def fmt(v: Any) -> str:
+        return "-" if v is None else "/".join(f"{x:.3f}" for x in v)
+
+    table = [
+        {
+            "set": r["set"],
+            "log": r["log"],
+            "full RMSE": fmt(r["full"]),
+            "active RMSE": fmt(r["active"]),
+            "autopilot's RMSE": fmt(r["autopilot"]),
+            "isolations (outside windows)": f"{r['isolations']} ({r['isolations_outside_windows']})",
+            "lag full / autopilot (ms)": f"{r['lag_full_ms']} / {r['lag_autopilot_ms']}",
+        }
+        for r in rows
+    ]
+    return [
+        "### Tuning and held-out flights side by side (RMSE N/E/D m/s against SIM_STATE; "
+        "lag: best-fit delay against truth)",
+        "",
+        format_table(table),
+    ]
 
 
 def write_doc(result: dict[str, Any]) -> None:

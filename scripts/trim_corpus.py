@@ -5,6 +5,11 @@ stamp + the frame's original bytes, so CRCs and signatures are unchanged), xz-co
 and the sidecar JSON as it is. Run from the repo root:
 
     python scripts/trim_corpus.py ../shared/data/ardupilot-sitl tests/data/ardupilot_sitl
+
+``--multi-imu`` also keeps the second and third IMU (SCALED_IMU2, SCALED_IMU3), as the
+held-out corpus does:
+
+    python scripts/trim_corpus.py --multi-imu RAW_DIR tests/data/ardupilot_sitl_heldout
 """
 
 from __future__ import annotations
@@ -31,9 +36,11 @@ KEEP = frozenset(
         "STATUSTEXT",
     }
 )
+#: the other IMUs an ArduPilot sends (``--multi-imu``)
+MULTI_IMU = frozenset({"SCALED_IMU2", "SCALED_IMU3"})
 
 
-def trim(src: Path, dst: Path) -> tuple[int, int]:
+def trim(src: Path, dst: Path, keep: frozenset[str] = KEEP) -> tuple[int, int]:
     mlog = mavutil.mavlink_connection(str(src), robust_parsing=True)
     out = bytearray()
     kept = total = 0
@@ -42,7 +49,7 @@ def trim(src: Path, dst: Path) -> tuple[int, int]:
         if m is None:
             break
         total += 1
-        if m.get_type() not in KEEP:
+        if m.get_type() not in keep:
             continue
         t_us = round(m._timestamp * 1e6)
         out += t_us.to_bytes(8, "big") + m.get_msgbuf()
@@ -55,10 +62,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("src", type=Path)
     ap.add_argument("dst", type=Path)
+    ap.add_argument(
+        "--multi-imu", action="store_true", help="also keep SCALED_IMU2 and SCALED_IMU3"
+    )
     a = ap.parse_args()
+    keep = KEEP | MULTI_IMU if a.multi_imu else KEEP
     a.dst.mkdir(parents=True, exist_ok=True)
     for tlog in sorted(a.src.glob("*.tlog")):
-        kept, total = trim(tlog, a.dst / (tlog.name + ".xz"))
+        kept, total = trim(tlog, a.dst / (tlog.name + ".xz"), keep)
         shutil.copyfile(tlog.with_suffix(".json"), a.dst / tlog.with_suffix(".json").name)
         size = (a.dst / (tlog.name + ".xz")).stat().st_size
         print(f"{tlog.name}: kept {kept} of {total} messages, {size / 1e6:.2f} MB xz")
