@@ -36,7 +36,8 @@ KEEP = frozenset(
         "STATUSTEXT",
     }
 )
-#: the other IMUs an ArduPilot sends (``--multi-imu``)
+#: the other IMUs an ArduPilot sends: in KEEP now (imu_monitor); ``--multi-imu`` is kept
+#: for the recipes that name it
 MULTI_IMU = frozenset({"SCALED_IMU2", "SCALED_IMU3"})
 
 
