@@ -240,10 +240,10 @@ class RateMonitor:
         return True
 
     def note_interval(self, message_id: int, interval_us: int) -> None:
-        """MESSAGE_INTERVAL: the vehicle's interval of a stream; kept only if the service
-        has not set that stream yet (the answer to its query, sent before its request)."""
+        """MESSAGE_INTERVAL: the vehicle's interval of a stream; only the first answer to
+        the service's query counts (the vehicle answers it before the request that follows)."""
         name = MESSAGE_NAMES.get(message_id)
-        if name is not None and name not in self._set_hz:
+        if name is not None and name in self._queried and name not in self._before_us:
             self._before_us[name] = int(interval_us)
 
     def interval_before_us(self, message: str) -> int | None:

@@ -1,0 +1,247 @@
+"""A small MAVLink vehicle serving TCP on 127.0.0.1 (as ArduPilot's SITL serves 5760), for
+the rate-request tests: streams at its own rates, answers SET_MESSAGE_INTERVAL and
+GET_MESSAGE_INTERVAL as an autopilot does, logs every command in its own boot time, and can
+drop its link, come back and reboot (its time_boot going back to 0, its rates to its
+defaults, as a real autopilot's do).
+
+Its clock runs at real speed (host monotonic time since its boot), so that "within 2 s of
+the reboot" is read off the vehicle's own time of each command.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from glmav_observer.ingest.rates import MESSAGE_IDS, MESSAGE_NAMES
+
+#: an autopilot's highest stream rate (ArduPilot's streams are capped by its loop, 50 Hz on
+#: a SITL serial port); requests above are served at this rate
+MAX_HZ = 50.0
+_CMD_GET = mavlink.MAV_CMD_GET_MESSAGE_INTERVAL
+_CMD_SET = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+#: the streams it can send
+STREAMS = ("ATTITUDE", "HIGHRES_IMU", "LOCAL_POSITION_NED", "GPS_RAW_INT", "EKF_STATUS_REPORT")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One command received: the boot it came in, its time in that boot (s), the command,
+    the message id and the interval asked (param2, µs)."""
+
+    boot: int
+    t_boot_s: float
+    command: int
+    message: str
+    interval_us: float
+
+
+@dataclass
+class TcpVehicle:
+    """The vehicle (see the module). ``defaults_hz``: its rates at boot (0: not sent);
+    ``radio_txbuf``: a RADIO_STATUS at 1 Hz with this % of transmit buffer free (None: none)."""
+
+    port: int
+    defaults_hz: Mapping[str, float]
+    sysid: int = 1
+    radio_txbuf: int | None = None
+    commands: list[Command] = field(default_factory=list)
+    #: per boot: the boot time (s) a client connected
+    accepted: list[tuple[int, float]] = field(default_factory=list)
+    boot: int = 0
+    bytes_sent: int = 0
+    _t0: float = 0.0
+    _hz: dict[str, float] = field(default_factory=dict)
+    _next: dict[str, float] = field(default_factory=dict)
+    _listener: socket.socket | None = None
+    _client: socket.socket | None = None
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _thread: threading.Thread | None = None
+    _mav: Any = None
+    _parser: Any = None
+
+    # -- control (from the test) ---------------------------------------------------------
+    def start(self) -> TcpVehicle:
+        self.reboot()
+        self.listen()
+        self._thread = threading.Thread(target=self._serve, name="tcp-vehicle", daemon=True)
+        self._thread.start()
+        return self
+
+    def reboot(self) -> None:
+        """time_boot back to 0, the rates back to the defaults (the link stays)."""
+        with self._lock:
+            self.boot += 1
+            self._t0 = time.monotonic()
+            self._hz = {m: float(self.defaults_hz.get(m, 0.0)) for m in STREAMS}
+            self._next = {m: 0.0 for m in STREAMS}
+            self._next["HEARTBEAT"] = 0.0
+            self._next["RADIO_STATUS"] = 0.0
+            self._mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+            self._parser = mavlink.MAVLink(None)
+            self._parser.robust_parsing = True
+
+    def listen(self) -> None:
+        """Accept a connection on the port (again)."""
+        ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        ls.bind(("127.0.0.1", self.port))
+        ls.listen(1)
+        ls.setblocking(False)
+        with self._lock:
+            self._listener = ls
+
+    def drop(self) -> None:
+        """The link goes away: the connection and the listener close (connections refused)."""
+        with self._lock:
+            for s in (self._client, self._listener):
+                if s is not None:
+                    s.close()
+            self._client = self._listener = None
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        self.drop()
+
+    def t_boot_s(self) -> float:
+        return time.monotonic() - self._t0
+
+    def rate_hz(self, message: str) -> float:
+        """The rate the vehicle sends ``message`` at now."""
+        with self._lock:
+            return self._hz.get(message, 0.0)
+
+    def sets(self, message: str, boot: int | None = None) -> list[Command]:
+        """The SET_MESSAGE_INTERVAL commands for ``message`` (in ``boot``, if given)."""
+        with self._lock:
+            return [
+                c
+                for c in self.commands
+                if c.command == _CMD_SET
+                and c.message == message
+                and (boot is None or c.boot == boot)
+            ]
+
+    def gets(self, message: str) -> list[Command]:
+        with self._lock:
+            return [c for c in self.commands if c.command == _CMD_GET and c.message == message]
+
+    # -- the vehicle ---------------------------------------------------------------------
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            with self._lock:
+                ls, cl = self._listener, self._client
+            if cl is None and ls is not None:
+                with contextlib.suppress(BlockingIOError, OSError):
+                    conn, _ = ls.accept()
+                    conn.setblocking(False)
+                    with self._lock:
+                        self._client = conn
+                        self.accepted.append((self.boot, self.t_boot_s()))
+                    continue
+            if cl is not None:
+                self._read(cl)
+                self._stream(cl)
+            time.sleep(0.002)
+
+    def _read(self, cl: socket.socket) -> None:
+        try:
+            ready, _, _ = select.select([cl], [], [], 0)
+            if not ready:
+                return
+            data = cl.recv(65536)
+        except OSError:
+            return
+        if not data:
+            with self._lock:
+                if self._client is cl:
+                    cl.close()
+                    self._client = None
+            return
+        with self._lock:
+            msgs = self._parser.parse_buffer(data) or []
+            for m in msgs:
+                if m.get_type() == "COMMAND_LONG" and m.target_system in (0, self.sysid):
+                    self._command(cl, m)
+
+    def _command(self, cl: socket.socket, m: Any) -> None:
+        """One COMMAND_LONG (the caller holds the lock)."""
+        cmd = int(m.command)
+        name = MESSAGE_NAMES.get(int(m.param1), str(int(m.param1)))
+        self.commands.append(Command(self.boot, self.t_boot_s(), cmd, name, float(m.param2)))
+        result = mavlink.MAV_RESULT_UNSUPPORTED
+        if cmd in (_CMD_GET, _CMD_SET) and name in STREAMS:
+            result = mavlink.MAV_RESULT_ACCEPTED
+            if cmd == _CMD_GET:
+                hz = self._hz[name]
+                self._send(
+                    cl,
+                    mavlink.MAVLink_message_interval_message(
+                        MESSAGE_IDS[name], round(1e6 / hz) if hz > 0 else -1
+                    ),
+                )
+            else:
+                iv = float(m.param2)
+                default = float(self.defaults_hz.get(name, 0.0))
+                self._hz[name] = 0.0 if iv < 0 else default if iv == 0 else min(1e6 / iv, MAX_HZ)
+        self._send(
+            cl,
+            mavlink.MAVLink_command_ack_message(
+                cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()
+            ),
+        )
+
+    def _send(self, cl: socket.socket, msg: Any) -> None:
+        frame = bytes(msg.pack(self._mav))
+        with contextlib.suppress(OSError):
+            cl.sendall(frame)
+            self.bytes_sent += len(frame)
+
+    def _stream(self, cl: socket.socket) -> None:
+        with self._lock:
+            t = self.t_boot_s()
+            ms, us = int(t * 1e3), int(t * 1e6)
+            out: list[Any] = []
+            if t >= self._next["HEARTBEAT"]:
+                self._next["HEARTBEAT"] = t + 1.0
+                out.append(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))  # quad, ArduPilot
+            if self.radio_txbuf is not None and t >= self._next["RADIO_STATUS"]:
+                self._next["RADIO_STATUS"] = t + 1.0
+                out.append(
+                    mavlink.MAVLink_radio_status_message(200, 190, self.radio_txbuf, 40, 40, 0, 0)
+                )
+            for name in STREAMS:
+                hz = self._hz[name]
+                if hz <= 0 or t < self._next[name]:
+                    continue
+                nxt = self._next[name] + 1.0 / hz
+                self._next[name] = nxt if nxt > t else t + 1.0 / hz
+                out.append(_stream_message(name, ms, us))
+            for msg in out:
+                self._send(cl, msg)
+
+
+def _stream_message(name: str, t_ms: int, t_us: int) -> Any:
+    """A hovering vehicle's sample of ``name`` stamped ``t_ms``/``t_us`` (boot time)."""
+    if name == "ATTITUDE":
+        return mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    if name == "HIGHRES_IMU":
+        return mavlink.MAVLink_highres_imu_message(
+            t_us, 0.0, 0.0, -9.80665, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1013.0, 0.0, 0.0, 20.0, 0x3F
+        )
+    if name == "LOCAL_POSITION_NED":
+        return mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -10.0, 0.0, 0.0, 0.0)
+    if name == "GPS_RAW_INT":
+        return mavlink.MAVLink_gps_raw_int_message(t_us, 3, 0, 0, 10000, 100, 100, 0, 0, 12)
+    return mavlink.MAVLink_ekf_status_report_message(0x1FF, 0.1, 0.1, 0.1, 0.1, 0.0)
