@@ -21,7 +21,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from glmav_observer.ingest.rates import MESSAGE_IDS, MESSAGE_NAMES
+from glmav_observer.ingest.rates import MESSAGE_IDS
+
+_NAMES = {i: m for m, i in MESSAGE_IDS.items()}
 
 #: an autopilot's highest stream rate (ArduPilot's streams are capped by its loop, 50 Hz on
 #: a SITL serial port); requests above are served at this rate
@@ -178,7 +180,7 @@ class TcpVehicle:
     def _command(self, cl: socket.socket, m: Any) -> None:
         """One COMMAND_LONG (the caller holds the lock)."""
         cmd = int(m.command)
-        name = MESSAGE_NAMES.get(int(m.param1), str(int(m.param1)))
+        name = _NAMES.get(int(m.param1), str(int(m.param1)))
         self.commands.append(Command(self.boot, self.t_boot_s(), cmd, name, float(m.param2)))
         result = mavlink.MAV_RESULT_UNSUPPORTED
         if cmd in (_CMD_GET, _CMD_SET) and name in STREAMS:
