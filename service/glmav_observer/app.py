@@ -134,6 +134,8 @@ class Service:
         not say reads everything; so does the ``on_records`` hook), and the service's own
         truth; for a vehicle that sends truth, every estimate (the summary scores them:
         :meth:`_reads_for`). A sink reading less than the most any vehicle gets is gated."""
+        #: sinks told of each configuration switch at its own time (``switch_at``)
+        self._switch_sinks: list[Any] = [s for s in self.sinks if hasattr(s, "switch_at")]
         built = READS_SCORING
         for sink in self.sinks:
             built = built.union(reads_of(sink))
@@ -210,7 +212,15 @@ class Service:
             if not isinstance(ev, _VEHICLE_EVENTS):  # a sample: the common case
                 self._vehicle_link[ev.sysid] = link_id
                 self._vehicle_peer[ev.sysid] = self.current_peer
-                out.extend(self.estimators[ev.sysid].on_sample(ev))
+                vest = self.estimators[ev.sysid]
+                if not self._switch_sinks:
+                    out.extend(vest.on_sample(ev))
+                    continue
+                n_switches = len(vest.switches)
+                out.extend(vest.on_sample(ev))
+                for sw in vest.switches[n_switches:]:  # told before the records that follow
+                    for sink in self._switch_sinks:
+                        sink.switch_at(ev.sysid, sw.t_boot_s)
                 continue
             if isinstance(ev, NewVehicle):
                 self._new_estimator(ev.sysid, link_id)
