@@ -8,10 +8,11 @@ is known, the rates asked for are chosen to fit in a fraction of it:
 - capacity: ``[rates] link_bytes_per_s`` when set; else a serial link's baud rate / 10 (8N1:
   a start bit, 8 data bits, a stop bit per byte; a serial device without ``,BAUD`` is opened
   at pymavlink's 115,200); else, on a link that carries ``RADIO_STATUS`` (SiK radios inject
-  it, ArduPilot relays its radio's), the bytes per second received while the radio's
-  transmit buffer is filling (``txbuf`` below ``TXBUF_FULL_PERCENT`` % free: the radio sends
-  all it can, so what arrives is what it carries; the estimate only goes down, by 10 % at
-  least, so that the plan is stable). Otherwise (UDP, TCP) the rates are not limited.
+  it, ArduPilot relays its radio's), the bytes per second received between two RADIO_STATUS
+  that both say the radio's transmit buffer is full (``txbuf`` below ``TXBUF_FULL_PERCENT``
+  % free: the radio sent all it could the whole period, so what arrived is what it carries;
+  a lower measure later replaces the estimate only if 10 % lower, a higher one always, so
+  that the plan is stable). Otherwise (UDP, TCP) the rates are not limited.
 - budget: ``[rates] link_budget_fraction`` of the capacity (default 0.5), shared equally by
   the vehicles on the link. Half, because the same radio carries the vehicle's own telemetry
   to the ground station (ArduPilot's default SRx streams take ~1.5-2 kB/s), parameters and
@@ -52,8 +53,8 @@ DEFAULT_BUDGET_FRACTION = 0.5
 FLOOR_HZ = 1.0
 #: RADIO_STATUS.txbuf (% of the radio's transmit buffer free) below which the radio is full
 TXBUF_FULL_PERCENT = 50
-#: a new estimate of a radio's capacity replaces the last only if this much lower (a
-#: stable plan: each change of the rates costs a request per stream)
+#: a lower estimate of a radio's capacity replaces the last only below this fraction of it
+#: (a stable plan: each change of the rates costs a request per stream)
 RADIO_CAPACITY_STEP = 0.9
 
 
@@ -116,7 +117,7 @@ class LinkCapacity:
         #: the radio's estimate (RADIO_STATUS), None before the radio's buffer ever filled
         self.radio_bytes_per_s: float | None = None
         self.rx_bytes = 0
-        self._last_status: tuple[float, int] | None = None  # (host time, rx_bytes) then
+        self._last_status: tuple[float, int, bool] | None = None  # (t, rx_bytes, full)
 
     @property
     def bytes_per_s(self) -> float | None:
@@ -125,17 +126,18 @@ class LinkCapacity:
         return self.radio_bytes_per_s
 
     def radio_status(self, txbuf_percent: int, t_host_s: float) -> bool:
-        """A RADIO_STATUS arrived at ``t_host_s``; True if the capacity estimate changed."""
-        last, self._last_status = self._last_status, (t_host_s, self.rx_bytes)
-        if last is None or t_host_s - last[0] <= 0.0:
+        """A RADIO_STATUS arrived at ``t_host_s``; True if the capacity estimate changed.
+
+        Measured over the period from the previous RADIO_STATUS when both said the radio
+        was full: it sent all it could the whole period."""
+        full = txbuf_percent < TXBUF_FULL_PERCENT
+        last, self._last_status = self._last_status, (t_host_s, self.rx_bytes, full)
+        if last is None or not (full and last[2]) or t_host_s - last[0] <= 0.0:
             return False
         received = (self.rx_bytes - last[1]) / (t_host_s - last[0])
-        if txbuf_percent >= TXBUF_FULL_PERCENT or received <= 0:
-            return False
-        if (
-            self.radio_bytes_per_s is None
-            or received < RADIO_CAPACITY_STEP * self.radio_bytes_per_s
-        ):
+        est = self.radio_bytes_per_s
+        # more received is a better measure; much less, a slower radio now
+        if est is None or received > est or received < RADIO_CAPACITY_STEP * est:
             self.radio_bytes_per_s = received
             return True
         return False

@@ -30,6 +30,8 @@ _NAMES = {i: m for m, i in MESSAGE_IDS.items()}
 MAX_HZ = 50.0
 _CMD_GET = mavlink.MAV_CMD_GET_MESSAGE_INTERVAL
 _CMD_SET = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+#: a SiK radio's transmit buffer (bytes)
+RADIO_BUFFER_BYTES = 2048
 #: the streams it can send
 STREAMS = ("ATTITUDE", "HIGHRES_IMU", "LOCAL_POSITION_NED", "GPS_RAW_INT", "EKF_STATUS_REPORT")
 
@@ -49,12 +51,15 @@ class Command:
 @dataclass
 class TcpVehicle:
     """The vehicle (see the module). ``defaults_hz``: its rates at boot (0: not sent);
-    ``radio_txbuf``: a RADIO_STATUS at 1 Hz with this % of transmit buffer free (None: none)."""
+    ``radio_bytes_per_s``: behind a telemetry radio that carries this many bytes per second
+    (None: none), which buffers up to ``RADIO_BUFFER_BYTES`` (then drops frames) and
+    reports its free buffer in a RADIO_STATUS at 1 Hz, as a SiK radio does."""
 
     port: int
     defaults_hz: Mapping[str, float]
     sysid: int = 1
-    radio_txbuf: int | None = None
+    radio_bytes_per_s: float | None = None
+    radio_dropped_frames: int = 0
     commands: list[Command] = field(default_factory=list)
     #: per boot: the boot time (s) a client connected
     accepted: list[tuple[int, float]] = field(default_factory=list)
@@ -70,6 +75,10 @@ class TcpVehicle:
     _thread: threading.Thread | None = None
     _mav: Any = None
     _parser: Any = None
+    _radio_mav: Any = None
+    _radio_buf: bytearray = field(default_factory=bytearray)
+    _radio_t: float = 0.0
+    _radio_allowance: float = 0.0
 
     # -- control (from the test) ---------------------------------------------------------
     def start(self) -> TcpVehicle:
@@ -89,6 +98,7 @@ class TcpVehicle:
             self._next["HEARTBEAT"] = 0.0
             self._next["RADIO_STATUS"] = 0.0
             self._mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+            self._radio_mav = mavlink.MAVLink(None, srcSystem=51, srcComponent=68)
             self._parser = mavlink.MAVLink(None)
             self._parser.robust_parsing = True
 
@@ -206,9 +216,34 @@ class TcpVehicle:
 
     def _send(self, cl: socket.socket, msg: Any) -> None:
         frame = bytes(msg.pack(self._mav))
+        if self.radio_bytes_per_s is not None:
+            if len(self._radio_buf) + len(frame) > RADIO_BUFFER_BYTES:
+                self.radio_dropped_frames += 1
+            else:
+                self._radio_buf += frame
+            return
         with contextlib.suppress(OSError):
             cl.sendall(frame)
             self.bytes_sent += len(frame)
+
+    def _radio(self, cl: socket.socket) -> None:
+        """The radio sends what its capacity allows since the last turn (the caller holds
+        the lock)."""
+        now = time.monotonic()
+        if self._radio_t == 0.0:
+            self._radio_t = now
+        assert self.radio_bytes_per_s is not None
+        self._radio_allowance += (now - self._radio_t) * self.radio_bytes_per_s
+        self._radio_t = now
+        n = min(int(self._radio_allowance), len(self._radio_buf))
+        if n <= 0:
+            self._radio_allowance = min(self._radio_allowance, 100.0)  # no credit when idle
+            return
+        with contextlib.suppress(OSError):
+            cl.sendall(bytes(self._radio_buf[:n]))
+            self.bytes_sent += n
+        del self._radio_buf[:n]
+        self._radio_allowance -= n
 
     def _stream(self, cl: socket.socket) -> None:
         with self._lock:
@@ -218,11 +253,12 @@ class TcpVehicle:
             if t >= self._next["HEARTBEAT"]:
                 self._next["HEARTBEAT"] = t + 1.0
                 out.append(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))  # quad, ArduPilot
-            if self.radio_txbuf is not None and t >= self._next["RADIO_STATUS"]:
+            if self.radio_bytes_per_s is not None and t >= self._next["RADIO_STATUS"]:
+                # the radio's own status (SiK: system 51, component 68), first in its queue
                 self._next["RADIO_STATUS"] = t + 1.0
-                out.append(
-                    mavlink.MAVLink_radio_status_message(200, 190, self.radio_txbuf, 40, 40, 0, 0)
-                )
+                free = round(100 * (1 - len(self._radio_buf) / RADIO_BUFFER_BYTES))
+                status = mavlink.MAVLink_radio_status_message(200, 190, free, 40, 40, 0, 0)
+                self._radio_buf[:0] = bytes(status.pack(self._radio_mav))
             for name in STREAMS:
                 hz = self._hz[name]
                 if hz <= 0 or t < self._next[name]:
@@ -232,6 +268,8 @@ class TcpVehicle:
                 out.append(_stream_message(name, ms, us))
             for msg in out:
                 self._send(cl, msg)
+            if self.radio_bytes_per_s is not None:
+                self._radio(cl)
 
 
 def _stream_message(name: str, t_ms: int, t_us: int) -> Any:
