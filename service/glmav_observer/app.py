@@ -376,9 +376,11 @@ class Service:
             peer = self._vehicle_peer.get(sysid)
             v = self.ingest.vehicles[sysid]
             for r in reqs:
-                frames = [encode_rate_request(self._mav, r)]
+                frames = []
                 if v.rates.query_due(r.message):  # its interval before ours, asked first
-                    frames.insert(0, encode_interval_query(self._mav, sysid, r.compid, r.message))
+                    # (and packed first: signed frames' timestamps must increase in order)
+                    frames.append(encode_interval_query(self._mav, sysid, r.compid, r.message))
+                frames.append(encode_rate_request(self._mav, r))
                 if lk is None:  # no live loop (a fleet worker): its owner sends the outbox
                     self.outbox.extend((link_id, f, peer) for f in frames)
                 elif not all(lk.write(f, peer) for f in frames):
