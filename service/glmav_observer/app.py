@@ -391,10 +391,12 @@ class Service:
     def _plan_rates(self, sysid: int, link_id: str) -> None:
         """The rates vehicle ``sysid`` is asked for: what fits its link's budget, shared by
         the vehicles on the link (ingest/link_budget.py), or the configured ones."""
-        cap = self._capacity.get(link_id)
-        if cap is None or cap.bytes_per_s is None:
-            return
         cfg = self.config.ingest
+        cap = self._capacity.get(link_id)
+        if cap is None:  # a link this service does not hold (a worker's): its name says
+            cap = self._capacity[link_id] = LinkCapacity(link_id, cfg.link_bytes_per_s)
+        if cap.bytes_per_s is None:
+            return
         n = sum(1 for lid in self._vehicle_link.values() if lid == link_id)
         budget = cfg.link_budget_fraction * cap.bytes_per_s / max(n, 1)
         plan = fit_rates(

@@ -78,9 +78,10 @@ def test_requests_count_when_sent_and_are_renewed_after_reconnect_and_reboot(
                 assert rates.asked(m) == 2
             assert svc.summary().vehicles[1].counters.get("clock_reset", 0) == 1
 
-            # a reboot on the same link: time_boot goes back; the 4 Hz LOCAL_POSITION_NED and
-            # GPS_RAW_INT show it after 5 samples (~0.6 s); ATTITUDE, off at boot, would be
-            # judged short only after 2 s of silence and asked at the next check
+            # a reboot on the same link: time_boot goes back; five samples of the 4 Hz
+            # LOCAL_POSITION_NED confirm the new timeline (1.0 s: the vehicle's only timed
+            # stream at boot; GPS_RAW_INT is untimed); ATTITUDE, off at boot, would be judged
+            # short only after 2 s of silence and asked at the next check
             vehicle.reboot()
             wait_until(lambda: all(vehicle.sets(m, boot=3) for m in SET_BY_SERVICE), 5.0, "reboot")
             for m in SET_BY_SERVICE:
