@@ -11,8 +11,7 @@ is known, the rates asked for are chosen to fit in a fraction of it:
   it, ArduPilot relays its radio's), the bytes per second received between two RADIO_STATUS
   that both say the radio's transmit buffer is full (``txbuf`` below ``TXBUF_FULL_PERCENT``
   % free: the radio sent all it could the whole period, so what arrived is what it carries;
-  a lower measure later replaces the estimate only if 10 % lower, a higher one always, so
-  that the plan is stable). Otherwise (UDP, TCP) the rates are not limited.
+  a later measure replaces the estimate only if 10 % lower, so that the plan is stable). Otherwise (UDP, TCP) the rates are not limited.
 - budget: ``[rates] link_budget_fraction`` of the capacity (default 0.5), shared equally by
   the vehicles on the link. Half, because the same radio carries the vehicle's own telemetry
   to the ground station (ArduPilot's default SRx streams take ~1.5-2 kB/s), parameters and
@@ -136,8 +135,7 @@ class LinkCapacity:
             return False
         received = (self.rx_bytes - last[1]) / (t_host_s - last[0])
         est = self.radio_bytes_per_s
-        # more received is a better measure; much less, a slower radio now
-        if est is None or received > est or received < RADIO_CAPACITY_STEP * est:
+        if est is None or received < RADIO_CAPACITY_STEP * est:  # first, or a slower radio
             self.radio_bytes_per_s = received
             return True
         return False

@@ -1,6 +1,6 @@
 """Issue 29.5 live: rate requests over a TCP link that drops and a vehicle that reboots.
 
-The vehicle (glmav_testkit.tcp_vehicle) serves TCP on 127.0.0.1 like ArduPilot's SITL and
+The vehicle (glmav_testkit.stream_vehicle) serves TCP on 127.0.0.1 like ArduPilot's SITL and
 boots with ArduPilot-like default rates: LOCAL_POSITION_NED and GPS_RAW_INT at 4 Hz,
 EKF_STATUS_REPORT at 2 Hz, no ATTITUDE, no IMU. The service asks for the rest. Then the
 link goes down for 6 s (the service used to count requests while it was down and grow
@@ -18,7 +18,7 @@ import pytest
 
 from glmav_observer.config import parse_config
 from glmav_testkit.rel_helpers import live_service, wait_until
-from glmav_testkit.tcp_vehicle import TcpVehicle
+from glmav_testkit.stream_vehicle import StreamVehicle
 
 #: ArduPilot-like rates at boot (Hz)
 DEFAULTS_HZ = {"LOCAL_POSITION_NED": 4.0, "GPS_RAW_INT": 4.0, "EKF_STATUS_REPORT": 2.0}
@@ -35,7 +35,7 @@ def test_requests_count_when_sent_and_are_renewed_after_reconnect_and_reboot(
     free_tcp_port: Callable[[], int],
 ) -> None:
     port = free_tcp_port()
-    vehicle = TcpVehicle(port, DEFAULTS_HZ).start()
+    vehicle = StreamVehicle(port, DEFAULTS_HZ).start()
     try:
         with live_service(f"tcp:127.0.0.1:{port}", config=parse_config({})) as live:
             svc = live.service

@@ -1,6 +1,6 @@
 """Issue 29.5: ``serve`` stopped by SIGINT or SIGTERM sets the streams it changed back to
 what they were (the interval the vehicle said before, MESSAGE_INTERVAL), on a live TCP link
-to a vehicle (glmav_testkit.tcp_vehicle). The service used to leave HIGHRES_IMU at 250 Hz
+to a vehicle (glmav_testkit.stream_vehicle). The service used to leave HIGHRES_IMU at 250 Hz
 and ATTITUDE at 100 Hz on the vehicle after it exited."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from collections.abc import Callable
 import pytest
 
 from glmav_testkit.rel_helpers import wait_until
-from glmav_testkit.tcp_vehicle import TcpVehicle
+from glmav_testkit.stream_vehicle import StreamVehicle
 
 CLI = [sys.executable, "-m", "glmav_observer.cli"]
 #: ArduPilot-like rates at boot (Hz); ATTITUDE at 4 Hz is below its 10 Hz need
@@ -26,7 +26,7 @@ def test_serve_restores_the_rates_on_a_clean_exit(
     sig: signal.Signals, free_tcp_port: Callable[[], int]
 ) -> None:
     port = free_tcp_port()
-    vehicle = TcpVehicle(port, DEFAULTS_HZ).start()
+    vehicle = StreamVehicle(port, DEFAULTS_HZ).start()
     serve = subprocess.Popen(
         [*CLI, "serve", "--link", f"tcp:127.0.0.1:{port}", "--no-zenoh"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,

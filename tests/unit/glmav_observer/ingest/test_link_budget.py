@@ -78,8 +78,10 @@ def test_a_radio_is_measured_over_periods_it_was_full() -> None:
     assert cap.radio_status(20, 13.0) and cap.bytes_per_s == 4000.0
     cap.rx_bytes += 3800
     assert not cap.radio_status(20, 14.0) and cap.bytes_per_s == 4000.0  # 5 %: stable
+    cap.rx_bytes += 4200
+    assert not cap.radio_status(20, 15.0) and cap.bytes_per_s == 4000.0  # so is 5 % more
     cap.rx_bytes += 3000
-    assert cap.radio_status(20, 15.0) and cap.bytes_per_s == 3000.0  # a slower radio now
+    assert cap.radio_status(20, 16.0) and cap.bytes_per_s == 3000.0  # a slower radio now
     fixed = LinkCapacity("/dev/ttyUSB0,57600")
     fixed.rx_bytes = 0
     fixed.radio_status(20, 1.0)

@@ -1,8 +1,9 @@
-"""A small MAVLink vehicle serving TCP on 127.0.0.1 (as ArduPilot's SITL serves 5760), for
-the rate-request tests: streams at its own rates, answers SET_MESSAGE_INTERVAL and
-GET_MESSAGE_INTERVAL as an autopilot does, logs every command in its own boot time, and can
-drop its link, come back and reboot (its time_boot going back to 0, its rates to its
-defaults, as a real autopilot's do).
+"""A small MAVLink vehicle on a byte-stream link, for the rate-request tests: a TCP server on
+127.0.0.1 (as ArduPilot's SITL serves 5760) or a pseudo-terminal (a serial port: the
+service opens its other end as ``/dev/pts/N,BAUD``). It streams at its own rates, answers
+SET_MESSAGE_INTERVAL and GET_MESSAGE_INTERVAL as an autopilot does, logs every command in
+its own boot time, and can drop its TCP link, come back and reboot (its time_boot going back
+to 0, its rates to its defaults, as a real autopilot's do).
 
 Its clock runs at real speed (host monotonic time since its boot), so that "within 2 s of
 the reboot" is read off the vehicle's own time of each command.
@@ -11,10 +12,12 @@ the reboot" is read off the vehicle's own time of each command.
 from __future__ import annotations
 
 import contextlib
+import os
 import select
 import socket
 import threading
 import time
+import tty
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,7 +52,7 @@ class Command:
 
 
 @dataclass
-class TcpVehicle:
+class StreamVehicle:
     """The vehicle (see the module). ``defaults_hz``: its rates at boot (0: not sent);
     ``radio_bytes_per_s``: behind a telemetry radio that carries this many bytes per second
     (None: none), which buffers up to ``RADIO_BUFFER_BYTES`` (then drops frames) and
@@ -79,14 +82,29 @@ class TcpVehicle:
     _radio_buf: bytearray = field(default_factory=bytearray)
     _radio_t: float = 0.0
     _radio_allowance: float = 0.0
+    _pty_slave: int | None = None
 
     # -- control (from the test) ---------------------------------------------------------
-    def start(self) -> TcpVehicle:
+    def start(self) -> StreamVehicle:
         self.reboot()
         self.listen()
         self._thread = threading.Thread(target=self._serve, name="tcp-vehicle", daemon=True)
         self._thread.start()
         return self
+
+    def start_pty(self) -> str:
+        """Start on a pseudo-terminal instead of TCP; returns the serial device's path."""
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line discipline before the service opens it
+        os.set_blocking(master, False)
+        self._pty_slave = slave
+        self.reboot()
+        with self._lock:
+            self._client = _PtyEnd(master)  # type: ignore[assignment]
+            self.accepted.append((self.boot, 0.0))
+        self._thread = threading.Thread(target=self._serve, name="pty-vehicle", daemon=True)
+        self._thread.start()
+        return os.ttyname(slave)
 
     def reboot(self) -> None:
         """time_boot back to 0, the rates back to the defaults (the link stays)."""
@@ -125,6 +143,9 @@ class TcpVehicle:
         if self._thread is not None:
             self._thread.join(5.0)
         self.drop()
+        if self._pty_slave is not None:
+            os.close(self._pty_slave)
+            self._pty_slave = None
 
     def t_boot_s(self) -> float:
         return time.monotonic() - self._t0
@@ -285,3 +306,24 @@ def _stream_message(name: str, t_ms: int, t_us: int) -> Any:
     if name == "GPS_RAW_INT":
         return mavlink.MAVLink_gps_raw_int_message(t_us, 3, 0, 0, 10000, 100, 100, 0, 0, 12)
     return mavlink.MAVLink_ekf_status_report_message(0x1FF, 0.1, 0.1, 0.1, 0.1, 0.0)
+
+
+class _PtyEnd:
+    """The vehicle's end of a pseudo-terminal, read and written like its TCP socket."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def recv(self, n: int) -> bytes:
+        return os.read(self.fd, n)
+
+    def sendall(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:  # a full terminal buffer (nobody reads) raises: the rest is lost
+            view = view[os.write(self.fd, view) :]
+
+    def close(self) -> None:
+        os.close(self.fd)
