@@ -115,6 +115,8 @@ class RateMonitor:
     #: streams to ask again at once (the vehicle lost what the service had set)
     _renew: set[str] = field(default_factory=set)
     _renewed_at_s: float | None = None
+    #: streams at their rate at their last check
+    _flowing: set[str] = field(default_factory=set)
 
     def note(self, message: str, t_s: float, t_host_s: float) -> None:
         """A sample of ``message`` stamped ``t_s`` (vehicle) arrived at host time ``t_host_s``."""
@@ -188,8 +190,14 @@ class RateMonitor:
                 else:
                     self._next_check_s[m] = float("inf")
             elif self._short(m, t_host_s):
+                if m in self._flowing and self.rate_hz(m, t_host_s) == 0.0:
+                    # it stopped altogether: the vehicle lost it (a reboot the clock cannot
+                    # see: no timed stream at boot); asked with its back-off from the start
+                    self._attempts[m] = 0
+                self._flowing.discard(m)
                 out.append(RateRequest(sysid, compid, m, hz))
             else:
+                self._flowing.add(m)
                 self._next_check_s[m] = t_host_s + self.window_s
         return out
 
