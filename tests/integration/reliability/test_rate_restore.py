@@ -51,3 +51,35 @@ def test_serve_restores_the_rates_on_a_clean_exit(
             serve.kill()
             serve.communicate()
         vehicle.stop()
+
+
+@pytest.mark.timeout(90)
+def test_serve_workers_restore_the_rates_of_their_udp_vehicles(
+    free_udp_port: Callable[[], int],
+) -> None:
+    """``serve --workers 2`` on a UDP port (routed by the kernel to the worker of the
+    vehicle's system id, which answers from its own socket of the port): the worker sets
+    the rates back when the parent stops it on SIGTERM."""
+    svc_port, vehicle_port = free_udp_port(), free_udp_port()
+    serve = subprocess.Popen(
+        [*CLI, "serve", "--link", f"udpin:127.0.0.1:{svc_port}", "--no-zenoh", "--workers", "2"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    vehicle = StreamVehicle(vehicle_port, DEFAULTS_HZ).start_udp(svc_port)
+    try:
+        wait_until(
+            lambda: vehicle.rate_hz("ATTITUDE") == 50.0 and vehicle.rate_hz("HIGHRES_IMU") == 50.0,
+            30.0,
+            "the service's rates in force",
+        )
+        serve.send_signal(signal.SIGTERM)
+        _, err = serve.communicate(timeout=30)
+        assert serve.returncode == 0, err[-2000:]
+        assert [c.interval_us for c in vehicle.sets("ATTITUDE")][1:] == [250_000.0]
+        assert [c.interval_us for c in vehicle.sets("HIGHRES_IMU")][1:] == [0.0]
+        assert vehicle.rate_hz("ATTITUDE") == 4.0 and vehicle.rate_hz("HIGHRES_IMU") == 0.0
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.communicate()
+        vehicle.stop()

@@ -1,6 +1,6 @@
-"""A small MAVLink vehicle on a byte-stream link, for the rate-request tests: a TCP server on
-127.0.0.1 (as ArduPilot's SITL serves 5760) or a pseudo-terminal (a serial port: the
-service opens its other end as ``/dev/pts/N,BAUD``). It streams at its own rates, answers
+"""A small MAVLink vehicle on a link of its own, for the rate-request tests: a TCP server on
+127.0.0.1 (as ArduPilot's SITL serves 5760), a pseudo-terminal (a serial port: the service
+opens its other end as ``/dev/pts/N,BAUD``) or a UDP sender (one frame a datagram). It streams at its own rates, answers
 SET_MESSAGE_INTERVAL and GET_MESSAGE_INTERVAL as an autopilot does, logs every command in
 its own boot time, and can drop its TCP link, come back and reboot (its time_boot going back
 to 0, its rates to its defaults, as a real autopilot's do).
@@ -89,6 +89,21 @@ class StreamVehicle:
         self.reboot()
         self.listen()
         self._thread = threading.Thread(target=self._serve, name="tcp-vehicle", daemon=True)
+        self._thread.start()
+        return self
+
+    def start_udp(self, service_port: int) -> StreamVehicle:
+        """Start as a UDP sender to ``udpin:127.0.0.1:service_port`` (one frame a datagram),
+        from 127.0.0.1:``port``, instead of a TCP server."""
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", self.port))
+        sock.connect(("127.0.0.1", service_port))
+        sock.setblocking(False)
+        self.reboot()
+        with self._lock:
+            self._client = sock
+            self.accepted.append((self.boot, 0.0))
+        self._thread = threading.Thread(target=self._serve, name="udp-vehicle", daemon=True)
         self._thread.start()
         return self
 
