@@ -43,8 +43,9 @@ def test_serve_stops_cleanly_and_flushes(
         # the simulator already streams what the estimator needs ([rates.min_hz]): the
         # service asks for none of it (it used to send 4 SET_MESSAGE_INTERVAL on sight), only
         # once for the two aiding streams glmav-sitl does not send (EKF_STATUS_REPORT,
-        # GPS_RAW_INT: what an autopilot's velocity rests on)
-        assert m is not None and int(m.group(1)) == 2
+        # GPS_RAW_INT: what an autopilot's velocity rests on), each after a query of its
+        # interval (GET_MESSAGE_INTERVAL: what the service restores when it stops)
+        assert m is not None and int(m.group(1)) == 4
     finally:
         serve.send_signal(sig)
         stdout, stderr = serve.communicate(timeout=30)
