@@ -24,7 +24,9 @@ it sets every stream it changed back to that interval (:meth:`RateMonitor.restor
 the vehicle's default rate, interval 0, when the vehicle did not say). A vehicle that
 rebooted (its clock went back) or a TCP link that reconnected has lost the intervals set:
 every stream the service had set is asked again at once (:meth:`RateMonitor.renew`), with
-its back-off from the start.
+its back-off from the start. A needed stream that was at its rate and stops altogether (a
+reboot no timed stream shows: HEARTBEAT only) is asked at the next check, its back-off
+from the start too.
 
 On a link of known capacity (:mod:`glmav_observer.ingest.link_budget`) the rates asked for
 are those that fit in its budget (:meth:`RateMonitor.set_plan`); a stream the service set
