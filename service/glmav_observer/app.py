@@ -39,17 +39,19 @@ from glmav_observer.ingest.framing import (
     SigningState,
     new_dialect,
 )
+from glmav_observer.ingest.link_budget import LinkCapacity, fit_rates
 from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, KernelDrops, Link
 from glmav_observer.ingest.pipeline import (
     IMU_MESSAGE_IDS,
     Ingest,
     IngestEvent,
     NewVehicle,
+    RadioStatus,
     VehicleConflict,
     VehicleEvicted,
     VehicleReset,
 )
-from glmav_observer.ingest.rates import encode_rate_request
+from glmav_observer.ingest.rates import encode_interval_query, encode_rate_request
 from glmav_observer.publish.sink import Sink
 from glmav_observer.reads import (
     READS_ALL,
@@ -64,7 +66,7 @@ from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, V
 logger = logging.getLogger(__name__)
 
 #: The ingest events about a vehicle rather than a sample of it.
-_VEHICLE_EVENTS = (NewVehicle, VehicleEvicted, VehicleReset, VehicleConflict)
+_VEHICLE_EVENTS = (NewVehicle, VehicleEvicted, VehicleReset, VehicleConflict, RadioStatus)
 #: How often (host seconds) the live loop checks received rates against requested ones.
 RATE_CHECK_PERIOD_S = 1.0
 #: Reads from one ready link per loop turn before the loop checks stop, rates and outbox.
@@ -72,6 +74,10 @@ DRAIN_MAX_READS = 256
 #: At stop, datagrams already queued are read for at most this long (host seconds): the
 #: stop bound of issue 18 (SIGTERM ≤ 0.5 s under any load).
 STOP_DRAIN_S = 0.5
+#: At stop, after the streams are set back to their intervals before the service, how long
+#: (host seconds) it waits for the vehicles' COMMAND_ACKs before closing the links (a TCP
+#: link closed with unread bytes is reset, which may drop what was not sent yet).
+RESTORE_WAIT_S = 0.3
 
 
 class Service:
@@ -110,6 +116,10 @@ class Service:
         self._closed = False
         self._on_records: Callable[[list[Record]], None] | None = None
         self._links: dict[str, Link] = {}
+        #: per live link: its capacity (ingest/link_budget.py)
+        self._capacity: dict[str, LinkCapacity] = {}
+        #: the rate requests are checked at the next loop turn (a reboot, a reconnect)
+        self._rates_now = False
         #: per vehicle: its estimates scored against truth, where truth comes (the summary)
         self._scorers: dict[int, TruthScorer] = {}
         #: what the estimators build (the union of the sinks' reads) and, per sink that
@@ -124,6 +134,8 @@ class Service:
         not say reads everything; so does the ``on_records`` hook), and the service's own
         truth; for a vehicle that sends truth, every estimate (the summary scores them:
         :meth:`_reads_for`). A sink reading less than the most any vehicle gets is gated."""
+        #: sinks told of each configuration switch at its own time (``switch_at``)
+        self._switch_sinks: list[Any] = [s for s in self.sinks if hasattr(s, "switch_at")]
         built = READS_SCORING
         for sink in self.sinks:
             built = built.union(reads_of(sink))
@@ -176,6 +188,9 @@ class Service:
     ) -> int:
         """Bytes received on ``link_id`` (one datagram, or a chunk of a stream)."""
         n = 0
+        cap = self._capacity.get(link_id)
+        if cap is not None:
+            cap.rx_bytes += len(data)
         dec = self.decoder(link_id, datagram=datagram)
         skipped = dec.prefiltered
         for msg in dec.feed(data, t_arrival_s):
@@ -197,7 +212,15 @@ class Service:
             if not isinstance(ev, _VEHICLE_EVENTS):  # a sample: the common case
                 self._vehicle_link[ev.sysid] = link_id
                 self._vehicle_peer[ev.sysid] = self.current_peer
-                out.extend(self.estimators[ev.sysid].on_sample(ev))
+                vest = self.estimators[ev.sysid]
+                if not self._switch_sinks:
+                    out.extend(vest.on_sample(ev))
+                    continue
+                n_switches = len(vest.switches)
+                out.extend(vest.on_sample(ev))
+                for sw in vest.switches[n_switches:]:  # told before the records that follow
+                    for sink in self._switch_sinks:
+                        sink.switch_at(ev.sysid, sw.t_boot_s)
                 continue
             if isinstance(ev, NewVehicle):
                 self._new_estimator(ev.sysid, link_id)
@@ -209,6 +232,20 @@ class Service:
                 continue
             if isinstance(ev, VehicleReset):
                 self.estimators[ev.sysid].restart("clock_reset")
+                self._renew_rates(ev.sysid)  # a reboot: the intervals set are lost
+                continue
+            if isinstance(ev, RadioStatus):
+                cap = self._capacity.get(link_id)
+                if (
+                    cap is not None
+                    and cap.fixed is None
+                    and cap.radio_status(ev.txbuf_percent, time.monotonic())
+                ):
+                    logger.info(
+                        "radio full: stream rates fitted to it",
+                        extra={"link": link_id, "bytes_per_s": cap.bytes_per_s},
+                    )
+                    self._rates_now = True
                 continue
             if isinstance(ev, VehicleConflict):
                 if ev.active:  # what was estimated may mix two sources: start afresh later
@@ -323,20 +360,93 @@ class Service:
         if not self.config.request_rates:
             return
         for sysid in list(self.ingest.vehicles):
-            link = self._vehicle_link.get(sysid)
-            if link is None:
+            link_id = self._vehicle_link.get(sysid)
+            if link_id is None:
                 continue
+            lk = self._links.get(link_id)
+            if lk is not None and lk.down:
+                continue  # nothing can be sent: nothing is due, no back-off grows
+            self._plan_rates(sysid, link_id)
             reqs = self.ingest.rate_requests(sysid, t_host_s)
             if reqs:
                 logger.info(
                     "rates short: requested",
                     extra={"sysid": sysid, "messages": [r.message for r in reqs]},
                 )
+            peer = self._vehicle_peer.get(sysid)
+            v = self.ingest.vehicles[sysid]
             for r in reqs:
-                self.outbox.append(
-                    (link, encode_rate_request(self._mav, r), self._vehicle_peer.get(sysid))
-                )
+                frames = []
+                if v.rates.query_due(r.message):  # its interval before ours, asked first
+                    # (and packed first: signed frames' timestamps must increase in order)
+                    frames.append(encode_interval_query(self._mav, sysid, r.compid, r.message))
+                frames.append(encode_rate_request(self._mav, r))
+                if lk is None:  # no live loop (a fleet worker): its owner sends the outbox
+                    self.outbox.extend((link_id, f, peer) for f in frames)
+                elif not all(lk.write(f, peer) for f in frames):
+                    continue  # not sent: not counted, due again at the next check
+                self.ingest.rate_sent(r, t_host_s)
                 self.counters["rate_requests_sent"] += 1
+
+    def _plan_rates(self, sysid: int, link_id: str) -> None:
+        """The rates vehicle ``sysid`` is asked for: what fits its link's budget, shared by
+        the vehicles on the link (ingest/link_budget.py), or the configured ones."""
+        cfg = self.config.ingest
+        cap = self._capacity.get(link_id)
+        if cap is None:  # a link this service does not hold (a worker's): its name says
+            cap = self._capacity[link_id] = LinkCapacity(link_id, cfg.link_bytes_per_s)
+        if cap.bytes_per_s is None:
+            return
+        n = sum(1 for lid in self._vehicle_link.values() if lid == link_id)
+        budget = cfg.link_budget_fraction * cap.bytes_per_s / max(n, 1)
+        plan = fit_rates(
+            cfg.rates_hz, cfg.rates_min_hz, budget, signed=self.config.signing_key is not None
+        )
+        self.ingest.vehicles[sysid].rates.set_plan(plan, cfg.rates_min_hz)
+
+    def _renew_rates(self, sysid: int) -> None:
+        """Vehicle ``sysid`` lost the intervals the service set: asked again at once."""
+        v = self.ingest.vehicles.get(sysid)
+        if v is not None and self.config.request_rates and v.rates.renew(time.monotonic()):
+            self.counters["rate_renewals"] += 1
+            self._rates_now = True
+
+    def restore_rates(self, links: dict[str, Link], clock: Callable[[], float]) -> int:
+        """Set every stream the service changed back to its interval before (at stop, on
+        the links still up); waits up to ``RESTORE_WAIT_S`` for the acknowledgements.
+        Returns the requests sent."""
+        if not self.config.request_rates:
+            return 0
+        sent = 0
+        acks_before = 0
+        for sysid, v in self.ingest.vehicles.items():
+            lk = links.get(self._vehicle_link.get(sysid, ""))
+            if lk is None or lk.down:
+                continue
+            acks_before += v.counters["rate_request_acks"]
+            for r in v.rates.restore_requests(sysid, v.compid):
+                if lk.write(encode_rate_request(self._mav, r), self._vehicle_peer.get(sysid)):
+                    sent += 1
+        self.counters["rate_restores_sent"] += sent
+        if sent:
+            logger.info("stream rates restored", extra={"requests": sent})
+        deadline = time.monotonic() + RESTORE_WAIT_S
+        while sent and time.monotonic() < deadline:
+            acks = sum(v.counters["rate_request_acks"] for v in self.ingest.vehicles.values())
+            if acks - acks_before >= sent:
+                break
+            got = False
+            for lid, lk in links.items():
+                if lk.fileno() is None:
+                    continue
+                data = lk.read()
+                if data:
+                    got = True
+                    self.current_peer = lk.peer
+                    self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
+            if not got:
+                time.sleep(0.005)
+        return sent
 
     # ------------------------------------------------------------------ live loop
     def run(
@@ -352,6 +462,11 @@ class Service:
         until its ``read`` has reconnected it.
         """
         self._links = links
+        cfg = self.config.ingest
+        self._capacity = {
+            lid: LinkCapacity(lk.conn, cfg.link_bytes_per_s) for lid, lk in links.items()
+        }
+        reconnects = {lid: lk.counters["tcp_reconnects"] for lid, lk in links.items()}
         next_rate_check = clock()
         while not stop_event.is_set():
             by_fd: dict[int, tuple[str, Link]] = {}
@@ -359,6 +474,11 @@ class Service:
                 fd = lk.fileno()
                 if fd is None:
                     lk.read()  # down: try to reconnect (with backoff)
+                    if lk.counters["tcp_reconnects"] != reconnects[lid]:
+                        reconnects[lid] = lk.counters["tcp_reconnects"]
+                        for sysid, vl in list(self._vehicle_link.items()):
+                            if vl == lid:
+                                self._renew_rates(sysid)
                 else:
                     by_fd[fd] = (lid, lk)
             try:
@@ -380,7 +500,8 @@ class Service:
                     if not lk.datagram:
                         break
             now = clock()
-            if now >= next_rate_check:
+            if now >= next_rate_check or self._rates_now:
+                self._rates_now = False
                 self.kernel_drops.check(links)
                 self.rate_requests(now)
                 if self.signing is not None:
@@ -391,6 +512,7 @@ class Service:
                 if lid in links:
                     links[lid].write(frame, peer)
         self._final_drain(links, clock)
+        self.restore_rates(links, clock)
         self.kernel_drops.check(links)
 
     def _final_drain(self, links: dict[str, Link], clock: Callable[[], float]) -> None:

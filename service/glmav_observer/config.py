@@ -343,6 +343,10 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     )
     if retry_max_s < retry_s:
         raise ConfigError(file, "rates.retry_max_s", f"must be >= retry_s ({retry_s:g})")
+    link_bps = rates.get("link_bytes_per_s", float, 0.0, within(0, 1e9))
+    budget_fraction = rates.get(
+        "link_budget_fraction", float, base.link_budget_fraction, within(0, 1, lo_open=True)
+    )
     has_hz = "hz" in rates.table
     hz_r = rates.sub("hz")
     wanted: dict[str, float] = {} if has_hz else dict(DEFAULT_RATES_HZ)
@@ -381,6 +385,8 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
         rate_window_s=window_s,
         rate_retry_s=retry_s,
         rate_retry_max_s=retry_max_s,
+        link_bytes_per_s=link_bps or None,
+        link_budget_fraction=budget_fraction,
     )
     # [estimation]
     est = root.sub("estimation")

@@ -29,6 +29,7 @@ import argparse
 import logging
 import os
 import sys
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -97,9 +98,16 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def default_workers(config: ServiceConfig, rerun_mode: str | None) -> tuple[int, str]:
+def default_workers(
+    config: ServiceConfig, rerun_mode: str | None, links: Sequence[str] = ()
+) -> tuple[int, str]:
     """``(workers, why)`` without ``--workers``: the usable cores, or 1 when an output
-    needs a single process."""
+    or a link needs a single process."""
+    held = [c for c in links if not c.startswith(("udpin:", "udp:"))]
+    if config.request_rates and held:
+        # the process that holds the link sees it go down, reconnect and fill, and sets the
+        # rates back at the stop (ingest/rates.py); workers behind it would not
+        return 1, f"rate requests on {held[0]} need one process (the link's state)"
     mode = rerun_mode if rerun_mode is not None else config.rerun.mode
     if mode in ("spawn", "serve"):
         return 1, f"--rerun {mode} needs one process (one viewer, one port)"
@@ -143,7 +151,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     workers = args.workers
     if workers is None:
-        workers, why = default_workers(config, args.rerun)
+        workers, why = default_workers(config, args.rerun, links)
         logger.info("serve: %d worker process(es): %s (--workers N to choose)", workers, why)
     _log_outputs(config, args)
     if workers > 1:

@@ -194,6 +194,10 @@ class _WorkerLoop:
                 pass
         service.kernel_drops.check(self.direct)
         self._answer()
+        # the rates set on our own sockets' vehicles back to what they were (the parent's
+        # links are closed by now: a TCP or serial link with rate requests runs in one
+        # process by default, which restores them itself)
+        service.restore_rates(self.direct, clock)
 
     def _read(self, lid: str, lk: Link, max_reads: int, *, at_stop: bool = False) -> int:
         """Read and estimate up to ``max_reads`` datagrams of a kernel-routed link; those

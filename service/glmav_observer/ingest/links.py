@@ -300,20 +300,31 @@ class Link:
         self.arrival_s = time.monotonic()
         return bytes(data) if data else b""
 
-    def write(self, data: bytes, peer: Any = None) -> None:
-        """Send ``data``; on a UDP server link to ``peer`` (a vehicle's address) if given."""
+    def write(self, data: bytes, peer: Any = None) -> bool:
+        """Send ``data``; on a UDP server link to ``peer`` (a vehicle's address) if given.
+        False if nothing was sent: the link is down (TCP), has no peer yet, or failed."""
+        if self._down or self._closed:
+            return False
         try:
             if self._m is None:  # our own udpin socket: answer the given or last sender
                 to = peer if peer is not None else self.peer
-                if to is not None and self._sock is not None:
-                    self._sock.sendto(data, to)
-                return
+                if to is None or self._sock is None:
+                    return False
+                self._sock.sendto(data, to)
+                return True
             if peer is not None and self._sock is not None and self.datagram:
                 self._sock.sendto(data, peer)
-                return
+                return True
+            if self.reconnects and self._sock is not None:
+                # a TCP client link: our socket (mavutil's write hides errors, reconnects
+                # by itself and blocks doing it)
+                self._sock.sendall(data)
+                return True
             self._m.write(data)
+            return True
         except OSError as err:
             logger.warning("link write failed", extra={"link": self.conn, "error": str(err)})
+            return False
 
     def kernel_drops(self) -> int | None:
         """Datagrams the kernel dropped on this link's UDP socket since it was opened: its

@@ -37,6 +37,7 @@ from glmav_observer.ingest.convert import (
     message_time_us,
     to_sample,
 )
+from glmav_observer.ingest.link_budget import DEFAULT_BUDGET_FRACTION
 from glmav_observer.ingest.rates import RateMonitor, RateRequest
 from glmav_observer.ingest.samples import ImuSample, ImuSource, Sample
 
@@ -90,8 +91,19 @@ class VehicleConflict:
     active: bool
 
 
-IngestEvent = Sample | VehicleReset | NewVehicle | VehicleEvicted | VehicleConflict
+@dataclass(frozen=True, slots=True)
+class RadioStatus:
+    """A RADIO_STATUS (a SiK radio's, or one the autopilot relays): ``txbuf_percent`` of
+    the radio's transmit buffer free (:mod:`glmav_observer.ingest.link_budget`)."""
 
+    sysid: int
+    txbuf_percent: int
+
+
+IngestEvent = Sample | VehicleReset | NewVehicle | VehicleEvicted | VehicleConflict | RadioStatus
+
+#: MAVLink: MAV_CMD_SET_MESSAGE_INTERVAL (a COMMAND_ACK answering a rate request).
+_CMD_SET_MESSAGE_INTERVAL = 511
 #: MAVLink: HEARTBEAT.autopilot of a component that is not an autopilot; type of a GCS.
 MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS = 6
@@ -113,6 +125,11 @@ class IngestConfig:
     rate_window_s: float = 2.0
     rate_retry_s: float = 5.0
     rate_retry_max_s: float = 60.0
+    #: a link's capacity (B/s) when set; else its serial baud rate or its radio's
+    #: RADIO_STATUS say it, or it is not limited (ingest/link_budget.py)
+    link_bytes_per_s: float | None = None
+    #: the share of a link's capacity the requested streams may take
+    link_budget_fraction: float = DEFAULT_BUDGET_FRACTION
     #: Vehicle seconds a sample is held so that samples jittered out of order on the link
     #: are released in vehicle-time order (0: none, samples are processed on arrival).
     reorder_window_s: float = 0.0
@@ -228,8 +245,7 @@ class Ingest:
         if name == "HEARTBEAT":
             return self._heartbeat(msg, sysid, v, t_host_s)
         if name not in self.consumed:
-            self.counters["ignored_messages"] += 1
-            return []
+            return self._other(name, msg, v)
         events: list[IngestEvent] = []
         compid = int(msg.get_srcComponent())
         if v is None:
@@ -283,6 +299,22 @@ class Ingest:
         v.held_count += 1
         self._release(v, v.newest_t_s - window, events)
         return events
+
+    def _other(self, name: str, msg: Any, v: VehicleInput | None) -> list[IngestEvent]:
+        """A message that is not a sample: the answers to the rate requests, a radio's
+        status; the rest is ignored (counted)."""
+        if name == "RADIO_STATUS":
+            return [RadioStatus(int(msg.get_srcSystem()), int(msg.txbuf))]
+        if v is not None and int(msg.get_srcComponent()) == v.compid:
+            if name == "MESSAGE_INTERVAL":
+                v.rates.note_interval(int(msg.message_id), int(msg.interval_us))
+                v.counters["message_interval"] += 1
+                return []
+            if name == "COMMAND_ACK" and int(msg.command) == _CMD_SET_MESSAGE_INTERVAL:
+                v.counters["rate_request_acks"] += 1
+                return []
+        self.counters["ignored_messages"] += 1
+        return []
 
     def _heartbeat(
         self, msg: Any, sysid: int, v: VehicleInput | None, t_host_s: float
@@ -369,13 +401,19 @@ class Ingest:
         return False
 
     def rate_requests(self, sysid: int, t_host_s: float) -> list[RateRequest]:
-        """SET_MESSAGE_INTERVAL requests due for ``sysid`` at host time ``t_host_s``."""
+        """SET_MESSAGE_INTERVAL requests due for ``sysid`` at host time ``t_host_s`` (counted
+        by :meth:`rate_sent` once sent)."""
         v = self.vehicles.get(sysid)
         if v is None:
             return []
-        reqs = v.rates.due_requests(sysid, v.compid, t_host_s)
-        for r in reqs:
-            v.counters["rate_requests"] += 1
-            if v.rates.asked(r.message) > 1:
-                v.counters["rate_rerequest"] += 1
-        return reqs
+        return v.rates.due_requests(sysid, v.compid, t_host_s)
+
+    def rate_sent(self, req: RateRequest, t_host_s: float) -> None:
+        """``req`` was written on a live link: counted, and its next check scheduled."""
+        v = self.vehicles.get(req.sysid)
+        if v is None:
+            return
+        v.rates.sent(req, t_host_s)
+        v.counters["rate_requests"] += 1
+        if v.rates.asked(req.message) > 1:
+            v.counters["rate_rerequest"] += 1

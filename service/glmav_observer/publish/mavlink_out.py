@@ -61,6 +61,7 @@ class _Vehicle:
     seen: bool = False  # a first estimate has been sent (sets ``source`` without a reset)
     active_config: str | None = None
     faults: frozenset[tuple[str, str, float]] = frozenset()
+    switch_t_s: float | None = None  # the last switch's own time (switch_at)
 
 
 @dataclass
@@ -170,6 +171,12 @@ class MavlinkOutSink:
             v = self._vehicles[sysid] = _Vehicle()
         return v
 
+    def switch_at(self, sysid: int, t_boot_s: float) -> None:
+        """``sysid``'s active configuration switched at ``t_boot_s`` (told by the service
+        as it happens): its STATUSTEXT gives this time, not the next health record's."""
+        with self._lock:
+            self._vehicle(sysid).switch_t_s = t_boot_s
+
     def _estimate(self, r: VelocityRecord) -> None:
         s = self.settings
         with self._lock:
@@ -246,12 +253,14 @@ class MavlinkOutSink:
                         f"glmav {h.sysid}: fault {kind} v{axis} at {t_detect:.2f}s",
                     )
                 if v.active_config is not None and h.active_config != v.active_config:
+                    t_switch = h.t_boot_s if v.switch_t_s is None else v.switch_t_s
                     self._text(
                         h.sysid,
                         mavlink2.MAV_SEVERITY_NOTICE,
                         f"glmav {h.sysid}: {v.active_config} -> {h.active_config} "
-                        f"at {h.t_boot_s:.2f}s",
+                        f"at {t_switch:.2f}s",
                     )
+                    v.switch_t_s = None
             v.faults = faults
             v.active_config = h.active_config
             if s.named_value_float and h.t_boot_s >= v.next_health_s:

@@ -237,8 +237,9 @@ def test_rate_requests_are_signed_and_a_signed_vehicle_obeys_them(
     summary = out[0]
     # asked once, after the 2 s measuring window; obeyed: 2 s at 5 Hz + 4 s at 100 Hz
     # (~410; without the request 30). 300 leaves room for a late request on a loaded machine
-    # (+2: EKF_STATUS_REPORT and GPS_RAW_INT, which glmav-sitl does not send, asked once)
-    assert summary.commands_received == 3, summary
+    # (+2: EKF_STATUS_REPORT and GPS_RAW_INT, which glmav-sitl does not send, asked once),
+    # each after a query of its interval (GET_MESSAGE_INTERVAL, signed too): 6
+    assert summary.commands_received == 6, summary
     assert summary.messages_sent["attitude"] > 300, summary.messages_sent
     svc = live.service.summary().service_counters
     assert svc["rate_requests_sent"] == 3

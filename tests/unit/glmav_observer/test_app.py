@@ -95,6 +95,7 @@ def test_a_short_stream_is_asked_again_with_backoff_and_observe_mode_sends_nothi
                     round(t, 3)
                     for c in _commands(svc)
                     if int(c.param1) == dialect.MAVLINK_MSG_ID_ATTITUDE
+                    and c.command == dialect.MAV_CMD_SET_MESSAGE_INTERVAL  # not its query
                 ]
         # after the first window, then 5, 10, 20 (retry_max_s), 20 s later
         assert asked == expected, mode

@@ -97,6 +97,8 @@ def test_cli_exit_code_2_on_bad_config(tmp_path: Path, capsys: pytest.CaptureFix
         ({"rates": {"hz": {"ATTITUDE": 1e6}}}, "rates.hz.ATTITUDE", r"\[0, 1000\], or -1"),
         ({"rates": {"mode": "always"}}, "rates.mode", "must be one of request, observe"),
         ({"rates": {"retry_s": 10.0, "retry_max_s": 5.0}}, "rates.retry_max_s", ">= retry_s"),
+        ({"rates": {"link_bytes_per_s": -1.0}}, "rates.link_bytes_per_s", r"\[0, 1e\+09\]"),
+        ({"rates": {"link_budget_fraction": 0.0}}, "rates.link_budget_fraction", r"\(0, 1\]"),
         ({"estimation": {"gamma_full": 1e12}}, "estimation.gamma_full", r"\(0, 1000\]"),
         ({"fdi": {"k_isolate": 10**9}}, "fdi.k_isolate", r"\[1, 10000\]"),
         ({"zenoh": {"decimation": {"health": -1}}}, "zenoh.decimation.health", r"\[0, 10000\]"),
@@ -133,3 +135,11 @@ def test_zenoh_rates_read_every_and_numbers_and_full_rate_overrides() -> None:
     assert cfg.effective()["zenoh"]["rates_hz"]["active"] == "every"  # JSON has no inf
     full = parse_config({"zenoh": {"full_rate": True, "rates": {"c1": 0}}})
     assert all(r == float("inf") for r in full.zenoh.reads().rates_hz.values())
+
+
+def test_link_capacity_settings() -> None:
+    """Issue 29.6: ``[rates] link_bytes_per_s`` and ``link_budget_fraction``."""
+    cfg = parse_config({"rates": {"link_bytes_per_s": 5760.0, "link_budget_fraction": 0.25}})
+    assert cfg.ingest.link_bytes_per_s == 5760.0 and cfg.ingest.link_budget_fraction == 0.25
+    default = parse_config({})
+    assert default.ingest.link_bytes_per_s is None and default.ingest.link_budget_fraction == 0.5
