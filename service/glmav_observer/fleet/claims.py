@@ -53,6 +53,7 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.seed import EstimatorSeed
 from glmav_observer.fleet.handover import HandoverError, seed_from_state, state_time_s
+from glmav_observer.ingest.pipeline import Admission
 from glmav_observer.publish.sink import Sink
 from glmav_observer.publish.zenoh_keys import decode_payload
 
@@ -371,6 +372,7 @@ class ClaimingService(Service):
         sinks: Sequence[Sink] = (),
         *,
         period_s: float = CLAIM_PERIOD_S,
+        admission: Admission | None = None,
     ) -> None:
         from glmav_observer.publish.zenoh_sink import ZenohSink
 
@@ -379,7 +381,7 @@ class ClaimingService(Service):
             for s in sinks:
                 s.close()
             raise ClaimError("--claim needs Zenoh: drop --no-zenoh, or set [zenoh] enabled = true")
-        super().__init__(config, sinks)
+        super().__init__(config, sinks, admission=admission)
         self.claims = ClaimManager(
             zs.session, zs.prefix, period_s=period_s, vehicle_timeout_s=zs.vehicle_timeout_s
         )

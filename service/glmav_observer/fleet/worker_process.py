@@ -23,6 +23,7 @@ from glmav_observer.app import DRAIN_MAX_READS, RATE_CHECK_PERIOD_S, STOP_DRAIN_
 from glmav_observer.app_sinks import open_sinks
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
+from glmav_observer.fleet.admission import SharedAdmission
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.routing import datagram_sysid, worker_of_sysid
 from glmav_observer.ingest.links import Link
@@ -86,6 +87,7 @@ def worker_main(
     inbox: multiprocessing.connection.Connection,
     outbox: multiprocessing.connection.Connection,
     sockets: dict[str, socket.socket] | None = None,
+    admission: SharedAdmission | None = None,
 ) -> None:
     """A worker process: its own Service and sinks, fed by the parent's batches and, for
     the UDP links the kernel routes (``sockets``: link id -> this worker's socket of the
@@ -103,7 +105,7 @@ def worker_main(
                     return
             except EOFError:  # the parent gave up starting
                 return
-        service = build_service(spec)
+        service = build_service(spec, admission)
     except Exception as err:  # reported to the parent, which exits 2 with it
         outbox.send(("error", str(err)))
         return
@@ -246,8 +248,9 @@ class _WorkerLoop:
                 self.outbox.send(("out", via_parent))
 
 
-def build_service(spec: WorkerSpec) -> Service:
-    """The worker's Service with its sinks (a claiming one with ``spec.claim``)."""
+def build_service(spec: WorkerSpec, admission: SharedAdmission | None = None) -> Service:
+    """The worker's Service with its sinks (a claiming one with ``spec.claim``);
+    ``admission``: the service's ``max_vehicles``, shared by its workers."""
     sinks = open_sinks(
         spec.config,
         out=None if spec.out is None else part_path(spec.out, spec.index),
@@ -262,5 +265,5 @@ def build_service(spec: WorkerSpec) -> Service:
     if spec.claim:
         from glmav_observer.fleet.claims import ClaimingService
 
-        return ClaimingService(spec.config, sinks)
-    return Service(spec.config, sinks)
+        return ClaimingService(spec.config, sinks, admission=admission)
+    return Service(spec.config, sinks, admission=admission)

@@ -69,6 +69,7 @@ from typing import Any
 from glmav_observer.app import RATE_CHECK_PERIOD_S, stop_on_signals
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
+from glmav_observer.fleet.admission import SharedAdmission
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.reuseport import ReuseportUnavailableError, bind_group, is_kernel_routable
 from glmav_observer.fleet.routing import StreamSplitter, datagram_sysid, worker_of_sysid
@@ -187,6 +188,8 @@ class ShardedServer:
         self.kernel_routed: list[str] = []
         #: UDP links the kernel could not route: the caller opens them for :meth:`run`
         self.router_links: list[str] = []
+        #: ``max_vehicles`` counted over all workers (issue 31 D12)
+        self.admission = SharedAdmission(specs[0].config.ingest.max_vehicles if specs else 1, ctx)
         groups: dict[str, list[socket.socket]] = {}
         try:
             for conn in udp_links:
@@ -209,6 +212,7 @@ class ShardedServer:
                         inbox_r,
                         res_w,
                         {conn: socks[i] for conn, socks in groups.items()},
+                        self.admission,
                     ),
                     name=f"glmav-worker-{spec.index}",
                     daemon=True,
