@@ -9,6 +9,7 @@ their pipe; a worker also reads its own socket of each UDP link the kernel route
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -25,8 +26,11 @@ from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.fleet.admission import SharedAdmission
 from glmav_observer.fleet.latency import LatencyHistogram
+from glmav_observer.fleet.reuseport import attach_program
 from glmav_observer.fleet.routing import datagram_sysid, worker_of_sysid
 from glmav_observer.ingest.links import Link
+
+logger = logging.getLogger(__name__)
 
 
 class WorkerError(RuntimeError):
@@ -175,6 +179,9 @@ class _WorkerLoop:
                 if batch is None:  # the parent stops us: what our sockets hold is read
                     stop = True
                     break
+                if isinstance(batch, tuple):  # ("reattach", link): see fleet/reuseport.py
+                    self._reattach(batch[1])
+                    continue
                 self.batches += 1
                 for link_id, t_arrival_s, data, peer in batch:
                     service.current_peer = peer
@@ -196,6 +203,23 @@ class _WorkerLoop:
                 pass
         service.kernel_drops.check(self.direct)
         self._answer()
+
+    def _reattach(self, lid: str) -> None:
+        """Attach the routing program to the group of ``lid`` again: a foreign socket
+        joined it and may have replaced ours (:class:`~glmav_observer.fleet.reuseport.
+        PortGuard`)."""
+        lk = self.direct.get(lid)
+        fd = lk.fileno() if lk is not None else None
+        if fd is None:
+            return
+        with socket.socket(fileno=os.dup(fd)) as sock:  # the same socket, our own fd
+            try:
+                attach_program(sock, self.spec.workers)
+            except OSError as err:
+                self.service.counters["routing_program_reattach_failed"] += 1
+                logger.warning("routing program not attached again: %s", err)
+                return
+        self.service.counters["routing_program_reattached"] += 1
 
     def _read(self, lid: str, lk: Link, max_reads: int, *, at_stop: bool = False) -> int:
         """Read and estimate up to ``max_reads`` datagrams of a kernel-routed link; those
