@@ -144,7 +144,9 @@ class ClaimManager:
         #: claims not honoured: their claimant published nothing of the vehicle
         self._distrusted: set[tuple[int, str]] = set()
         self._warned: set[str] = set()
-        #: claims ignored (not a member), vehicles taken back from silent claimants
+        #: claim turns that ignored a non-member's claim; vehicles taken back from silent
+        #: claimants (both in the summary: ``claims_ignored_not_member``,
+        #: ``vehicles_taken_back``)
         self.ignored_claims = 0
         self.taken_back = 0
         self._tokens: dict[int, Any] = {}
@@ -571,4 +573,8 @@ class ClaimingService(Service):
     def close(self) -> None:
         # release the claims first: the others take over without waiting for the session
         self.claims.close()
+        if self.claims.ignored_claims:
+            self.counters["claims_ignored_not_member"] = self.claims.ignored_claims
+        if self.claims.taken_back:
+            self.counters["vehicles_taken_back"] = self.claims.taken_back
         super().close()
