@@ -239,6 +239,7 @@ _BOUNDS: dict[str, Check] = {
     "k_isolate": within(1, 10_000),
     "recovery_s": within(0.0, 3600.0, lo_open=True),
     "sigma_handover_mps": within(0.0, 100.0, lo_open=True),
+    "sigma_velocity_mps": within(0.0, 100.0, lo_open=True),
     "sigma_bias_mps2": within(0.0, 100.0),
     "accel_noise_density": within(0.0, 10.0),
     "min_imu_rate_hz": within(0.0, 10_000.0, lo_open=True),

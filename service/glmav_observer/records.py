@@ -84,6 +84,13 @@ class VelocityRecord(NamedTuple):
     source_config: str | None = None
     sigma_lost_mps: float | None = None
     schema: str = VELOCITY_SCHEMA
+    #: the NED axes this estimate dead-reckons now, in n, e, d order: its lost axis, an
+    #: isolated axis, an axis the autopilot says is unaided (GPS lost), every axis while
+    #: the measurement stream is silent (``estimation.drift``)
+    dead_reckoned_axes: tuple[AxisName, ...] = ()
+    #: 1σ per NED axis of the dead-reckoned axes' drift (0.0 on a measured axis); None
+    #: when no axis is dead-reckoned
+    sigma_ned_mps: Vec3 | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -98,6 +105,8 @@ class VelocityRecord(NamedTuple):
             "seq": self.seq,
             "source_config": self.source_config,
             "sigma_lost_mps": self.sigma_lost_mps,
+            "dead_reckoned_axes": list(self.dead_reckoned_axes),
+            "sigma_ned_mps": None if self.sigma_ned_mps is None else _vec(self.sigma_ned_mps),
         }
 
 
@@ -283,7 +292,9 @@ Record = VelocityRecord | HealthRecord | TruthRecord | MeasurementRecord | Refer
 def flatten(record: Record) -> dict[str, Any]:
     """One flat row: lists become ``name_<axis>`` columns, nested dicts ``name.key``."""
     row: dict[str, Any] = {}
-    for key, value in record.to_dict().items():
+    for key, raw in record.to_dict().items():
+        # the same columns whether or not a record has a σ per axis
+        value = [None, None, None] if raw is None and key == "sigma_ned_mps" else raw
         if isinstance(value, list) and len(value) == 3 and key.endswith(("_mps", "_m", "_rad")):
             suffixes = ("u", "v", "w") if "body" in key else ("n", "e", "d")
             if key == "euler_rad":

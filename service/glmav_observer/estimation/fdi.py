@@ -43,6 +43,8 @@ class FaultDetector:
     reference_drifts: int = 0
     #: residual isolations withdrawn on a ramping residual (RAMP_LIMIT_MPS2)
     ramp_withdrawals: int = 0
+    #: per axis: the autopilot's velocity is unaided (used, not tested: :meth:`set_unaided`)
+    unaided: list[bool] = field(default_factory=lambda: [False, False, False])
     #: (t, axis, residual, B flat 9) of every axis over the last change_window_s
     _recent: deque[tuple[float, int, float, tuple[float, ...]]] = field(default_factory=deque)
 
@@ -75,11 +77,21 @@ class FaultDetector:
         a2.vet(t_s)
         fit.frozen_bias = a0.fault is not None or a1.fault is not None or a2.fault is not None
         fit.prune_and_fit(t_s)
-        v = (
-            a0.update(t_s, y_ned_mps[0], a_int_mps[0], ints),
-            a1.update(t_s, y_ned_mps[1], a_int_mps[1], ints),
-            a2.update(t_s, y_ned_mps[2], a_int_mps[2], ints),
-        )
+        u = self.unaided
+        if True in u:
+            w = [
+                AxisVerdict(True, math.nan, 0.0, ax.state)
+                if u[j] and ax.fault is None and math.isfinite(y_ned_mps[j])
+                else ax.update(t_s, y_ned_mps[j], a_int_mps[j], ints)
+                for j, ax in enumerate(self.axes)
+            ]
+            v = (w[0], w[1], w[2])
+        else:
+            v = (
+                a0.update(t_s, y_ned_mps[0], a_int_mps[0], ints),
+                a1.update(t_s, y_ned_mps[1], a_int_mps[1], ints),
+                a2.update(t_s, y_ned_mps[2], a_int_mps[2], ints),
+            )
         recent = self._recent
         for j, vj in enumerate(v):
             if math.isfinite(vj.residual_mps) and self.axes[j].fault is None:
@@ -155,13 +167,17 @@ class FaultDetector:
         )
         return (a, b, c)
 
-    def set_unaided(self, t_s: float, horizontal: bool | None, vertical: bool | None) -> None:
-        """Apply the autopilot's word on what its velocity rests on (None: no word)."""
-        if horizontal is not None:
-            self.axes[0].set_unaided(t_s, not horizontal)
-            self.axes[1].set_unaided(t_s, not horizontal)
-        if vertical is not None:
-            self.axes[2].set_unaided(t_s, not vertical)
+    def set_unaided(self, unaided: list[bool]) -> list[int]:
+        """The axes whose velocity the autopilot dead-reckons (``drift.DriftAxes``): their
+        measurement is still used (it is the autopilot's best estimate) but not tested,
+        since an unaided estimate drifts with the IMU it shares with the reference. An axis
+        aided again warms up on the new level (the autopilot's estimate snaps back to
+        its sensor). Returns the axes aided again."""
+        back = [j for j in range(3) if self.unaided[j] and not unaided[j]]
+        for j in back:
+            self.axes[j].restart_reference()
+        self.unaided = list(unaided)
+        return back
 
     def faulty_axes(self) -> list[int]:
         """Indices (0 n, 1 e, 2 d) of the axes currently isolated, in isolation order."""
@@ -172,7 +188,11 @@ class FaultDetector:
         return sorted(idx, key=lambda i: self.axes[i]._t_isolated_s)
 
     def states(self) -> dict[str, str]:
-        return {ax: m.state.value for ax, m in zip(NED_AXES, self.axes, strict=True)}
+        """Each axis's state; ``unaided`` while the autopilot dead-reckons it (untested)."""
+        return {
+            ax: "unaided" if self.unaided[j] and m.fault is None else m.state.value
+            for j, (ax, m) in enumerate(zip(NED_AXES, self.axes, strict=True))
+        }
 
     def armed(self) -> bool:
         """Residual tests are running on every healthy axis."""

@@ -512,14 +512,12 @@ class AxisMonitor:
         self.isolate(t_s, FaultKind.DROPOUT)
         return True
 
-    def set_unaided(self, t_s: float, unaided: bool) -> None:
-        """The autopilot says this axis's velocity is (not) aided (GPS lost, EKF flags)."""
-        is_unaided = self.fault is not None and self.fault.kind == FaultKind.UNAIDED.value
-        if unaided and not is_unaided:
-            self.isolate(t_s, FaultKind.UNAIDED)
-        elif not unaided and is_unaided:
-            # aided again: the autopilot's estimate snaps back; restart the reference on it
-            self.state = WARMUP
-            self.fault = None
-            self._frozen = None
-            self._resid.clear()
+    def restart_reference(self) -> None:
+        """The autopilot's velocity is aided again after a stretch unaided: its estimate
+        snaps back to the aiding sensor, so the axis warms up again on the new level
+        (``drift.DriftAxes``; no isolation is involved)."""
+        self.state = WARMUP
+        if self.fault is not None and self.fault.kind == FaultKind.UNAIDED.value:
+            self.fault = None  # (a seed from an older version may carry one)
+        self._frozen = None
+        self._resid.clear()

@@ -63,6 +63,11 @@ class FdiConfig:
     k_isolate: int = 3
     recovery_s: float = 2.0
     sigma_handover_mps: float = 0.03
+    #: 1σ of a GPS-aided autopilot velocity against truth, per axis: the anchor of an
+    #: axis flagged dead-reckoned without a fault (``drift``: a silent stream, GPS lost).
+    #: ArduPilot's EKF on the tuning flights: 0.027-0.038 m/s horizontal (a_quad_wind,
+    #: f_coax_clean, g_heli_clean, h_quad_gps_glitch), rounded up
+    sigma_velocity_mps: float = 0.04
     sigma_bias_mps2: float = 0.03
     accel_noise_density: float = 4e-3
     min_imu_rate_hz: float = 5.0

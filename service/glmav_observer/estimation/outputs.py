@@ -26,6 +26,7 @@ from glmav_observer.frames import e_exact, rotate_t_flat
 from glmav_observer.ingest.samples import TruthSample, VelocitySample
 from glmav_observer.reads import READS_ALL, VELOCITY_STREAMS, Reads, next_due_s
 from glmav_observer.records import (
+    VELOCITY_SCHEMA,
     FaultEvent,
     HealthRecord,
     MeasurementRecord,
@@ -50,6 +51,32 @@ def merge_counters(*parts: Mapping[str, int]) -> dict[str, int]:
 def _health_faulty(lost: AxisName | None) -> str:
     """A configuration's ``health`` while an axis is isolated."""
     return "degraded" if lost is None else "dead_reckoning"
+
+
+_AXIS_INDEX: dict[str, int] = {"n": 0, "e": 1, "d": 2}
+_AXES: tuple[AxisName, AxisName, AxisName] = ("n", "e", "d")
+
+
+def dead_reckoned(
+    lost: AxisName | None, sigma_lost_mps: float | None, drift: Sequence[float | None] | None
+) -> tuple[tuple[AxisName, ...], Vec3 | None]:
+    """A record's ``dead_reckoned_axes`` and ``sigma_ned_mps``: its lost axis with σ
+    ``sigma_lost_mps``, and every axis with a σ in ``drift`` (per NED axis, None: measured;
+    ``drift.drift_sigma_ned_mps`` and the isolated axes)."""
+    if drift is None:
+        if lost is None:
+            return (), None
+        sig = [0.0, 0.0, 0.0]
+        sig[_AXIS_INDEX[lost]] = sigma_lost_mps or 0.0
+        return (lost,), (sig[0], sig[1], sig[2])
+    sig = [0.0 if x is None else x for x in drift]
+    axes = [x is not None for x in drift]
+    if lost is not None:
+        j = _AXIS_INDEX[lost]
+        sig[j] = sigma_lost_mps or 0.0
+        axes[j] = True
+    names = tuple(a for a, on in zip(_AXES, axes, strict=True) if on)
+    return names, ((sig[0], sig[1], sig[2]) if names else None)
 
 
 #: Per configuration (CONFIGS order): its name, its lost axis and its ``health`` while no
@@ -145,12 +172,15 @@ class RecordBuilder:
         out: list[Record],
         active_body_mps: Vec3 | None = None,
         active_health: str | None = None,
+        drift_sigma_ned_mps: Sequence[float | None] | None = None,
     ) -> None:
         """The records due at one step: every configuration (CONFIGS order: ``body``,
         ``ned`` (tuples, put in the records as they are), ``sigma_lost_mps`` per
         configuration), then ``active`` (its body velocity the active configuration's, or
         ``active_body_mps`` when its NED one was moved: the aiding's offset; its health
-        ``active_health`` when given: ``aided``)."""
+        ``active_health`` when given: ``aided``). ``drift_sigma_ned_mps``: per NED axis,
+        the σ of an axis every configuration dead-reckons (isolated, unaided, a silent
+        stream; None: measured), or None when there is none."""
         seq = self._seq_config
         sysid = self.sysid
         due = self._due
@@ -160,11 +190,17 @@ class RecordBuilder:
             n = seq[i] + 1
             seq[i] = n
             b, v = body[i], ned[i]
+            dr_axes, sig_ned = dead_reckoned(lost, sigma_lost_mps[i], drift_sigma_ned_mps)
+            if n_faulty:
+                health = _health_faulty(lost)
+            elif drift_sigma_ned_mps is not None:
+                health = "dead_reckoning"
+            else:
+                health = health_ok
             out.append(
                 VelocityRecord(
-                    sysid, c, t, (b[0], b[1], b[2]), v, lost,
-                    health_ok if n_faulty == 0 else _health_faulty(lost), n, None,
-                    sigma_lost_mps[i],
+                    sysid, c, t, (b[0], b[1], b[2]), v, lost, health, n, None,
+                    sigma_lost_mps[i], VELOCITY_SCHEMA, dr_axes, sig_ned,
                 )
             )  # fmt: skip
         if not due(4, t):
@@ -175,17 +211,19 @@ class RecordBuilder:
         if active_health is not None:
             health_a = active_health
         elif n_faulty == 0:
-            health_a = "ok"
+            health_a = "ok" if drift_sigma_ned_mps is None else "dead_reckoning"
         elif n_faulty == 1:
             health_a = "dead_reckoning"
         else:
             health_a = "degraded"
         b_a = (body[a][0], body[a][1], body[a][2]) if active_body_mps is None else active_body_mps
+        lost_a = LOST_AXIS_OF_CONFIG[active]
+        dr_axes, sig_ned = dead_reckoned(lost_a, active_sigma_mps, drift_sigma_ned_mps)
         out.append(
             VelocityRecord(
-                self.sysid, "active", t, b_a, active_ned_mps,
-                LOST_AXIS_OF_CONFIG[active], health_a, self._seqn("active"), active,
-                active_sigma_mps,
+                self.sysid, "active", t, b_a, active_ned_mps, lost_a, health_a,
+                self._seqn("active"), active, active_sigma_mps, VELOCITY_SCHEMA, dr_axes,
+                sig_ned,
             )
         )  # fmt: skip
 
@@ -205,12 +243,14 @@ class RecordBuilder:
         if not self._due(5, t):
             return
         v_body = rotate_t_flat(e_flat, v_ned_mps)
+        lost = LOST_AXIS_OF_CONFIG[source_config]
+        dr_axes, sig_ned = dead_reckoned(lost, sigma_lost_mps, None)
         out.append(
             VelocityRecord(
                 self.sysid, AIDED, t, (v_body[0], v_body[1], v_body[2]),
-                (v_ned_mps[0], v_ned_mps[1], v_ned_mps[2]), LOST_AXIS_OF_CONFIG[source_config],
+                (v_ned_mps[0], v_ned_mps[1], v_ned_mps[2]), lost,
                 "aided" if aided else "dead_reckoning", self._seqn(AIDED), source_config,
-                sigma_lost_mps,
+                sigma_lost_mps, VELOCITY_SCHEMA, dr_axes, sig_ned,
             )
         )  # fmt: skip
 

@@ -60,6 +60,7 @@ from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
+from glmav_observer.estimation.drift import DriftAxes, drift_sigma_ned_mps
 from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
@@ -113,6 +114,9 @@ class EstimatorConfig:
     compensate_accel_bias: bool = True
     compensate_lag: bool = True
     max_gap_s: float = 1.0
+    #: while the autopilot says an axis is unaided (GPS lost), ``active`` follows its
+    #: velocity there (``VehicleEstimator._follow_unaided``); False: filtered as usual
+    follow_unaided: bool = True
     handover_contamination_mps: float = 1.0
     metrics_skip_s: float = 3.0
     adapt_gamma_full: bool = True
@@ -172,6 +176,8 @@ class VehicleEstimator:
             if config.aero_aiding
             else None
         )
+        #: the autopilot's word on its velocity's aiding (a vehicle fact: kept across restarts)
+        self.drift = DriftAxes()
         self._seed: EstimatorSeed | None = None
         #: vehicle s between a seed's state and the sample it was applied at (None: none)
         self.seed_age_s: float | None = None
@@ -197,7 +203,6 @@ class VehicleEstimator:
         self.out.next_health_s = None
         if self.aiding is not None:
             self.aiding.stop()
-        self._aiding: dict[str, tuple[bool | None, bool | None]] = {}
         self._n_accel_changes = 0
         self.t_bank_s: float | None = None
         self.t_first_s: float | None = None
@@ -307,6 +312,7 @@ class VehicleEstimator:
         )
         self.t_bank_s = self.t_first_s = self.out.next_health_s = t
         self.sel.start(t)
+        self.fdi.set_unaided(self.drift.unaided())
 
     def _init_from(self, s: VelocitySample) -> bool:
         """The first full velocity measurement with attitude and IMU known starts the bank."""
@@ -509,24 +515,28 @@ class VehicleEstimator:
         return [y[i] + lag_s * l_now[i] for i in range(3)]
 
     def _aiding_sample(self, s: AidingSample) -> None:
-        """The autopilot's word on what its velocity rests on. Its estimator's own report
-        (EKF_STATUS_REPORT) is the authority when it sends one: it knows what it fuses. An
-        ArduSub ROV loses its GPS fix at every dive while its velocity stays aided by
-        other sensors; ArduPilot's flags drop horizontal aiding ~7 s after a GPS loss,
-        while the EKF still dead-reckons well. Without that report, GPS_RAW_INT's fix type
-        decides the horizontal axes."""
-        self._aiding[s.source] = (s.horizontal_aided, s.vertical_aided)
-        if self.t_bank_s is None:
+        """The autopilot's word on what its velocity rests on (:mod:`.drift`): the GPS
+        fix, the earliest evidence of a GPS loss, and its estimator's flags
+        (EKF_STATUS_REPORT). Unaided axes stay fused and are flagged dead-reckoned, with
+        σ; the FDI does not test them (an unaided estimate drifts with the IMU) and warms
+        up again when they are aided."""
+        drift = self.drift
+        if s.source == "EKF_STATUS_REPORT":
+            drift.on_ekf(s.t_boot_s, s.horizontal_aided, s.vertical_aided)
+        else:
+            drift.on_gps(s.t_boot_s, s.horizontal_aided)
+        self._apply_unaided()
+
+    def _apply_unaided(self) -> None:
+        unaided = self.drift.unaided()
+        fdi = self.fdi
+        if unaided == fdi.unaided:
             return
-        src = "EKF_STATUS_REPORT" if "EKF_STATUS_REPORT" in self._aiding else s.source
-        if s.source != src:
-            return
-        horiz, vert = self._aiding[src]
-        faulty_before = set(self.fdi.faulty_axes())
-        self.fdi.set_unaided(s.t_boot_s, horiz, vert)
-        if set(self.fdi.faulty_axes()) != faulty_before:
-            self.counters[f"aiding_{s.reason or 'restored'}"] += 1
-            self._after_fdi(s.t_boot_s, faulty_before)
+        for j in range(3):
+            if unaided[j] and not fdi.unaided[j]:
+                self.counters[f"unaided_{NED_AXES[j]}"] += 1
+        fdi.set_unaided(unaided)
+        self.out.decision()  # published at once, whatever the records' rates
 
     def _check_missing(self, t: float) -> None:
         """No velocity measurement for its timeout (streams.StreamTiming): every
@@ -637,9 +647,12 @@ class VehicleEstimator:
                 # the dead reckoning (never aided, or set back): its σ, as without the
                 # aiding (bit for bit when nothing returns), and the returning part
                 a_sigma += abs(off)
+        if True in self.fdi.unaided and self.cfg.follow_unaided:
+            a_ned = self._follow_unaided(a_ned, j)
         self.out.velocity(
-            t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body, a_health
-        )
+            t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body, a_health,
+            self._drift_sigma(t),
+        )  # fmt: skip
         if st is not None and j is not None:
             v_aided = [a_dr[0], a_dr[1], a_dr[2]]
             v_aided[j] = st.v_mps
@@ -648,6 +661,39 @@ class VehicleEstimator:
         settled = sel.settle_jump(ned_l, c_int)
         if settled is not None:
             self.switches[-1] = settled
+
+    def _follow_unaided(self, a_ned: Vec3, lost_idx: int | None) -> Vec3:
+        """While the autopilot's velocity is unaided on an axis (GPS lost), ``active``
+        on it is the autopilot's velocity carried to now by the IMU (the held measurement,
+        propagated: ``HeldInputs.y_for_step``): the autopilot dead-reckons from its
+        full-rate IMU, and filtering it with the decimated IMU here only adds lag (on
+        ``b_quad_gps_off`` east during the loss: 0.0482 m/s filtered, 0.0411 followed,
+        the autopilot's 0.0407). An axis the active configuration has lost keeps its own."""
+        y = self.inputs.y_for_step(self.fdi.fit.bias_body_mps2, True)
+        un = self.fdi.unaided
+        v = [a_ned[0], a_ned[1], a_ned[2]]
+        for k in range(3):
+            if un[k] and k != lost_idx and math.isfinite(y[k]):
+                v[k] = y[k]
+        return (v[0], v[1], v[2])
+
+    def _drift_sigma(self, t: float) -> list[float | None] | None:
+        """Per NED axis, the σ of an axis every configuration dead-reckons now (None:
+        measured), or None when there is none: the isolated axes beyond the active
+        configuration's lost one (σ since their isolation), the unaided axes and a silent
+        measurement stream (:mod:`.drift`)."""
+        streams = self.streams
+        sig = drift_sigma_ned_mps(
+            self.cfg.fdi, t, self.drift.unaided_since_s, streams.t_y_s or None,
+            streams.y_interval_s,
+            [max(ax.sigma_r_mps, self.cfg.fdi.sigma_velocity_mps) for ax in self.fdi.axes],
+        )  # fmt: skip
+        faulty = self.fdi.faulty_axes()
+        for j in faulty:  # every configuration masks them (the active one: its lost axis)
+            ax = self.fdi.axes[j]
+            s_iso = sigma_dead_reckoning_mps(self.cfg.fdi, t - ax._t_isolated_s)
+            sig[j] = s_iso if sig[j] is None else max(sig[j] or 0.0, s_iso)
+        return None if sig == [None, None, None] else sig
 
     def _health_record(self, t: float) -> Record:
         faults = (

@@ -222,7 +222,9 @@ class MavlinkOutSink:
             # the estimator builds the records by, so that it builds only these
             v.next_estimate_s = next_due_s(r.t_boot_s, s.rate_hz)
             var = [s.sigma_measured_mps**2] * 3
-            if r.lost_axis is not None:
+            if r.sigma_ned_mps is not None:  # every dead-reckoned axis (lost, unaided, silent)
+                var = [max(v, x * x) for v, x in zip(var, r.sigma_ned_mps, strict=True)]
+            elif r.lost_axis is not None:
                 sig = r.sigma_lost_mps
                 var[_AXIS_INDEX[r.lost_axis]] = sig * sig if sig is not None else math.nan
             vn, ve, vd = r.v_ned_mps

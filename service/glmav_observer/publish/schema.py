@@ -118,6 +118,13 @@ VELOCITY: Schema = _record(
         "seq": _SEQ,
         "source_config": {"enum": [*CONFIGS, None]},
         "sigma_lost_mps": {"type": ["number", "null"], "minimum": 0},
+        "dead_reckoned_axes": {
+            "type": "array",
+            "items": {"enum": list(_AXES)},
+            "uniqueItems": True,
+            "maxItems": 3,
+        },
+        "sigma_ned_mps": {"anyOf": [_VEC3, {"type": "null"}]},
     }
 )
 
@@ -131,7 +138,7 @@ _FAULT: Schema = _object(
     }
 )
 
-_AXIS_STATE = {"enum": ["warmup", "ok", "suspect", "faulty", "recovering"]}
+_AXIS_STATE = {"enum": ["warmup", "ok", "suspect", "faulty", "recovering", "unaided"]}
 
 HEALTH: Schema = _record(
     {

@@ -218,11 +218,12 @@ def payload_encoder(encoding: str, service_id: str | None = None) -> Encoder:
 def _velocity_dict(record: VelocityRecord, extra: dict[str, str]) -> dict[str, Any]:
     """``record.to_dict()`` (plus ``extra``) from the tuple's fields, for an encoder that
     writes NaN as null itself (to_dict does it for the stdlib's JSON)."""
-    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema, dr_axes, sig_ned) = record
     return {
         "schema": schema, "sysid": sysid, "config": config, "t_boot_s": t,
         "v_body_mps": b, "v_ned_mps": v, "lost_axis": lost, "health": health,
-        "seq": seq, "source_config": src, "sigma_lost_mps": sigma, **extra,
+        "seq": seq, "source_config": src, "sigma_lost_mps": sigma,
+        "dead_reckoned_axes": dr_axes, "sigma_ned_mps": sig_ned, **extra,
     }  # fmt: skip
 
 

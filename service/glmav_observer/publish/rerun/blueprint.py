@@ -97,7 +97,13 @@ def build_blueprint(sysids: Sequence[int], configs: Sequence[str] = CONFIGS) -> 
             rrb.Vertical(
                 rrb.TextDocumentView(name="status", origin=status_path(sysid)),
                 series(AXIS_STATE_TITLE, [f"{h}/axis_state"]),
-                series("lost-axis sigma (m/s)", [f"{active_path(sysid)}/sigma_lost_mps"]),
+                series(
+                    "dead-reckoned sigma (m/s)",
+                    [
+                        f"{active_path(sysid)}/sigma_lost_mps",
+                        f"{active_path(sysid)}/sigma_ned_mps",
+                    ],
+                ),
                 row_shares=[1, 2, 2],
             ),
             rrb.TextLogView(name="events", origin=f"{h}/events"),
@@ -156,6 +162,12 @@ def log_styles(rec: rr.RecordingStream, sysid: int, configs: Sequence[str] = CON
         rr.SeriesLines(names="sigma lost axis", colors=COLORS[ACTIVE]),
         static=True,
     )
+    for a in NED_AXES:  # every dead-reckoned axis: GPS lost, a silent stream (drift)
+        rec.log(
+            f"{active_path(sysid)}/sigma_ned_mps/{a}",
+            rr.SeriesLines(names=f"sigma {a} (dead-reckoned)"),
+            static=True,
+        )
     # NED earth frame = Rerun's FRD axes (x north/forward, y east/right, z down)
     rec.log("/world", rr.ViewCoordinates.FRD, static=True)
     w = world_vehicle_path(sysid)

@@ -249,6 +249,9 @@ class RecordBuffer:
         h = health_path(sysid)
         groups = {
             "sigma_lost": _Group([f"{active_path(sysid)}/sigma_lost_mps"], [1]),
+            "sigma_ned": _Group(
+                [f"{active_path(sysid)}/sigma_ned_mps/{a}" for a in NED_AXES], [1] * 3
+            ),
             "meas_ned": _Group([f"{measurement_path(sysid)}/v_ned/{a}" for a in NED_AXES], [1] * 3),
             "meas_body": _Group(
                 [f"{measurement_path(sysid)}/v_body/{a}" for a in BODY_AXES], [1] * 3
@@ -284,6 +287,9 @@ class RecordBuffer:
         veh.cur[6 * i : 6 * i + 6] = (*r.v_body_mps, *r.v_ned_mps)
         if i == self._n_est - 1 and r.sigma_lost_mps is not None:
             veh.groups["sigma_lost"].append(r.t_boot_s, (r.sigma_lost_mps,))
+            veh.rows_buffered += 1
+        if i == self._n_est - 1 and r.sigma_ned_mps is not None:
+            veh.groups["sigma_ned"].append(r.t_boot_s, r.sigma_ned_mps)
             veh.rows_buffered += 1
 
     def _commit_update(self, veh: _Vehicle) -> None:
