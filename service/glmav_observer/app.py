@@ -43,6 +43,7 @@ from glmav_observer.ingest.link_budget import LinkCapacity, fit_rates
 from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, KernelDrops, Link
 from glmav_observer.ingest.pipeline import (
     IMU_MESSAGE_IDS,
+    Admission,
     Ingest,
     IngestEvent,
     NewVehicle,
@@ -83,14 +84,22 @@ RESTORE_WAIT_S = 0.3
 class Service:
     """The pipeline: bytes/messages -> ingest -> per-vehicle estimators -> sinks."""
 
-    def __init__(self, config: ServiceConfig, sinks: Sequence[Sink] = ()) -> None:
+    def __init__(
+        self,
+        config: ServiceConfig,
+        sinks: Sequence[Sink] = (),
+        *,
+        admission: Admission | None = None,
+    ) -> None:
+        """``admission``: ``max_vehicles`` shared with the other workers of one service
+        (:class:`~glmav_observer.fleet.admission.SharedAdmission`)."""
         self.config = config
         self.sinks: list[Sink] = list(sinks)
         #: sinks isolated after a write failed: (sink class name, error)
         self.failed_sinks: list[tuple[str, str]] = []
         # control samples only for the cyclic regressors that use them (else ignored)
         control = config.estimation.aero_control is not None
-        self.ingest = Ingest(dataclasses.replace(config.ingest, control_samples=control))
+        self.ingest = Ingest(dataclasses.replace(config.ingest, control_samples=control), admission)
         self.estimators: dict[int, VehicleEstimator] = {}
         self._retired: dict[int, VehicleEstimator] = {}
         self.decoders: dict[str, FrameDecoder] = {}

@@ -30,6 +30,38 @@ Vec3 = tuple[float, float, float]
 #: state starts cold from the measurement.
 SEED_MAX_AGE_S = 2.0
 
+#: A seed is a hypothesis (issue 31 D1: a peer's false state was continued for a whole
+#: flight): every velocity measurement within this many vehicle seconds of the seed's
+#: application is compared with the seeded active estimate (:func:`seed_disagreement`).
+SEED_CHECK_S = 1.0
+#: The gate, in σ of the innovation ν = y − v̂ per NED axis, with
+#: σ² = σ_meas² + σ_handover² + (A · (age + max_lag))²: the measurement's noise, the
+#: hand-over's own σ, and the velocity change nobody integrated: the seed's age (the new
+#: owner has no IMU between the state and its first sample) plus the measurement's lag
+#: (up to ``max_lag_s``), at A = ``SEED_CHECK_ACCEL_MPS2``. 5σ: a Gaussian axis exceeds
+#: it with probability 6e-7, so a true state is almost never refused, and a refusal only
+#: costs what every takeover cost before seeds (a cold start from the measurement). Every
+#: axis is checked, an isolated one too (a false isolation is how a forged state keeps
+#: its lie, D1); a genuine fault larger than the gate at the takeover starts cold.
+SEED_GATE_SIGMA = 5.0
+#: 1σ of the mean acceleration a vehicle may have had, unseen, over the seed's age and the
+#: measurement's lag, m/s² (3σ = 3 m/s²: a brisk manoeuvre of a small multirotor).
+SEED_CHECK_ACCEL_MPS2 = 1.0
+
+
+def seed_disagreement(
+    innovation_mps: Vec3, age_s: float, fdi: FdiConfig
+) -> tuple[int, float, float] | None:
+    """The first NED axis whose innovation exceeds the gate: ``(axis, |ν|, gate)`` in
+    m/s; None when the measurement agrees with the seed (see :data:`SEED_GATE_SIGMA`)."""
+    unseen = SEED_CHECK_ACCEL_MPS2 * (max(age_s, 0.0) + fdi.max_lag_s)
+    sigma = math.sqrt(fdi.sigma_meas_mps**2 + fdi.sigma_handover_mps**2 + unseen**2)
+    gate = SEED_GATE_SIGMA * sigma
+    for j, nu in enumerate(innovation_mps):
+        if not abs(nu) <= gate:  # (NaN: disagrees)
+            return j, abs(nu), gate
+    return None
+
 
 @dataclass(frozen=True, slots=True)
 class EstimatorSeed:

@@ -44,6 +44,7 @@ re-admitted when it is aided again.
 from __future__ import annotations
 
 import collections
+import logging
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -68,7 +69,14 @@ from glmav_observer.estimation.imu_monitor import ImuConsistency, ImuEvent
 from glmav_observer.estimation.inputs import HeldInputs
 from glmav_observer.estimation.observer import G_MPS2, EForm
 from glmav_observer.estimation.outputs import RecordBuilder, merge_counters
-from glmav_observer.estimation.seed import SEED_MAX_AGE_S, EstimatorSeed, seed_reference
+from glmav_observer.estimation.seed import (
+    SEED_CHECK_S,
+    SEED_GATE_SIGMA,
+    SEED_MAX_AGE_S,
+    EstimatorSeed,
+    seed_disagreement,
+    seed_reference,
+)
 from glmav_observer.estimation.selection import ActiveSelection, SwitchEvent
 from glmav_observer.estimation.streams import StreamTiming
 from glmav_observer.frames import rotate_flat
@@ -84,6 +92,8 @@ from glmav_observer.ingest.samples import (
 )
 from glmav_observer.reads import READS_ALL, Reads
 from glmav_observer.records import NED_AXES, FaultEvent, Record, ReferenceFitSummary
+
+logger = logging.getLogger(__name__)
 
 #: GPS velocities this far apart (vehicle s) tell which of two disagreeing IMUs is wrong:
 #: 0.3 m/s² of bias moves the dead reckoning 0.3 m/s in 1 s, several σ of a GPS's
@@ -183,12 +193,16 @@ class VehicleEstimator:
         self.seed_age_s: float | None = None
         #: "continued", or why the seed was not used ("too old"), once it was considered
         self.seed_outcome: str | None = None
+        #: a seed applied at this vehicle time is checked against the measurements until
+        #: SEED_CHECK_S later (None: nothing to check)
+        self._seed_check_t0_s: float | None = None  # (set by _restart)
         self._restart()
 
     # ------------------------------------------------------------------ state
     def _restart(self) -> None:
         """Every part afresh; the counters, events and sequence numbers are kept."""
         cfg = self.cfg
+        self._seed_check_t0_s = None
         self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2)
         self.fdi = FaultDetector(cfg.fdi)
         self.despike = Despiker()
@@ -433,11 +447,50 @@ class VehicleEstimator:
                 self.aiding.start(t, faulty[0])
         self.counters["estimator_seeded"] += 1
         self.seed_outcome = "continued"
+        self._seed_check_t0_s = t
 
     # ------------------------------------------------------------------ measurement + FDI
+    def _check_seed(self, s: VelocitySample) -> None:
+        """A measurement within SEED_CHECK_S of a seed's application: the seed is
+        dropped (a cold start from this measurement, with a warning) when they disagree."""
+        t0 = self._seed_check_t0_s
+        assert t0 is not None
+        if s.t_boot_s - t0 > SEED_CHECK_S:
+            self._seed_check_t0_s = None  # the seed held for its first second
+            return
+        if not all(math.isfinite(c) for c in s.v_ned_mps):
+            return
+        _, ned_l = self.bank.estimates_lists()
+        v_hat = self.sel.active_ned(ned_l, self.inputs.c_int)
+        nu = (s.v_ned_mps[0] - v_hat[0], s.v_ned_mps[1] - v_hat[1], s.v_ned_mps[2] - v_hat[2])
+        bad = seed_disagreement(nu, self.seed_age_s or 0.0, self.cfg.fdi)
+        if bad is None:
+            return
+        j, size, gate = bad
+        self._seed_check_t0_s = None
+        self.seed_outcome = (
+            f"disagreed with the vehicle's measurement ({NED_AXES[j]}: |ν| {size:.2f} m/s > "
+            f"gate {gate:.2f} m/s): dropped, started afresh"
+        )
+        self.counters["estimator_seed_disagreed"] += 1
+        logger.warning(
+            "vehicle %d: the state it was continued from disagrees with its own velocity "
+            "measurement %.3f s later (%s axis: |innovation| %.2f m/s > %.2f m/s = %g sigma): "
+            "dropped, starting afresh from the measurement",
+            self.sysid,
+            s.t_boot_s - t0,
+            NED_AXES[j],
+            size,
+            gate,
+            SEED_GATE_SIGMA,
+        )
+        self.restart("seed_disagreed")
+
     def _measurement(self, s: VelocitySample, out: list[Record]) -> None:
         t = s.t_boot_s
         inputs = self.inputs
+        if self._seed_check_t0_s is not None and self.t_bank_s is not None:
+            self._check_seed(s)
         self.out.measurement(s, inputs.euler_rad, out)
         if self.t_bank_s is None and (self._seed is not None or not self._init_from(s)):
             return  # (a seed starts the bank at the next attitude or IMU sample)

@@ -37,6 +37,27 @@ from a subscription).
 
 Messages of vehicles this service does not own are counted (``not_owned_messages``) and
 not estimated; messages that start no claim (a ground station's heartbeats) pass.
+
+Whom a service believes (issue 31 D1, D2). On an open Zenoh network anyone can declare
+tokens and answer state queries; the network's own defence is Zenoh's authentication and
+access control (``configs/zenoh/acl-router.json5``: only the service's user may declare
+``@claim``/``@members`` tokens and answer ``*/state``; docs/zenoh.md). Whatever the
+network, a service also honours a claim only
+
+- from a **member** (a session that holds a ``@members`` token): a flood of claim tokens
+  from a session that is not one (D2: 255 tokens of "zid" 0 stopped every record) is
+  ignored, with one warning per claimant;
+- that **delivers**: a vehicle this service hears, claimed by others for longer than
+  ``takeback_s`` (4 claim periods, 2 s: a new owner's first health record comes within
+  ~0.2 s of its claim: the next sample, then one health period) while nobody published
+  a health record of it for ``takeback_s``, is taken back with a warning; that claim
+  (vehicle, claimant) is not honoured again. A service therefore needs its health
+  records published (``[zenoh.decimation] health`` not 0) to keep its claims.
+
+The state a taken-over vehicle is continued from is only a hypothesis: it must agree
+with the vehicle's own measurements in the first second
+(:data:`~glmav_observer.estimation.seed.SEED_GATE_SIGMA`), else it is dropped with a
+warning and the estimation starts afresh.
 """
 
 from __future__ import annotations
@@ -53,6 +74,7 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.seed import EstimatorSeed
 from glmav_observer.fleet.handover import HandoverError, seed_from_state, state_time_s
+from glmav_observer.ingest.pipeline import Admission
 from glmav_observer.publish.sink import Sink
 from glmav_observer.publish.zenoh_keys import decode_payload
 
@@ -65,6 +87,11 @@ logger = logging.getLogger(__name__)
 CLAIM_PERIOD_S = 0.5
 #: A vehicle not heard for this long is released, s.
 VEHICLE_TIMEOUT_S = 5.0
+#: A claim on a vehicle this service hears, with no health record of it for this many
+#: claim periods, is not honoured (the vehicle is taken back; see the module doc).
+TAKEBACK_PERIODS = 4
+#: non-member claimants (and silent claims) named in a warning; past that, counted only
+MAX_WARNED_CLAIMANTS = 16
 #: The messages that make a service claim their sender (the estimator's inputs).
 CLAIMING_MESSAGES = frozenset(
     {"ATTITUDE", "HIGHRES_IMU", "SCALED_IMU", "RAW_IMU", "LOCAL_POSITION_NED"}
@@ -108,8 +135,20 @@ class ClaimManager:
         self.zid = str(session.zid())
         self.period_s = period_s
         self.vehicle_timeout_s = vehicle_timeout_s
+        #: a claim without health records of its vehicle for this long is not honoured, s
+        self.takeback_s = TAKEBACK_PERIODS * period_s
         self._lock = threading.Lock()
         self._claimants: dict[int, set[str]] = {}
+        #: when each claim (sysid, zid) was first seen (monotonic s)
+        self._claim_since: dict[tuple[int, str], float] = {}
+        #: claims not honoured: their claimant published nothing of the vehicle
+        self._distrusted: set[tuple[int, str]] = set()
+        self._warned: set[str] = set()
+        #: claim turns that ignored a non-member's claim; vehicles taken back from silent
+        #: claimants (both in the summary: ``claims_ignored_not_member``,
+        #: ``vehicles_taken_back``)
+        self.ignored_claims = 0
+        self.taken_back = 0
         self._tokens: dict[int, Any] = {}
         #: the vehicles this service owns now (read without the lock by the estimation loop)
         self.owned: frozenset[int] = frozenset()
@@ -146,8 +185,10 @@ class ClaimManager:
             holders = self._claimants.setdefault(sysid, set())
             if sample.kind == self._zenoh.SampleKind.PUT:
                 holders.add(zid)
+                self._claim_since.setdefault((sysid, zid), time.monotonic())
             else:
                 holders.discard(zid)
+                self._claim_since.pop((sysid, zid), None)
                 if zid != self.zid:
                     self.events.append(
                         {"event": "released", "sysid": sysid, "by": zid, "t": time.monotonic()}
@@ -190,7 +231,7 @@ class ClaimManager:
             # several services may answer for one vehicle: one that released it (a double
             # claim settled) keeps answering with its last records; only the claim
             # holder's reply counts, or without the replier's id the newest estimate
-            if replier is not None and str(replier.zid) not in self._claimants.get(sysid, ()):
+            if replier is not None and str(replier.zid) not in self._honoured(sysid):
                 self.stale_state_replies += 1
                 return
             old = self._last_state.get(sysid)
@@ -252,6 +293,63 @@ class ClaimManager:
         with self._lock:
             return set(self._claimants.get(sysid, ()))
 
+    # -- whom to believe --------------------------------------------------------------------
+    def _warn_once(self, zid: str, message: str, *args: object) -> None:
+        """Log ``message`` once per claimant (the first MAX_WARNED_CLAIMANTS)."""
+        if zid in self._warned or len(self._warned) >= MAX_WARNED_CLAIMANTS:
+            return
+        self._warned.add(zid)
+        logger.warning(message, *args)
+
+    def _honoured(self, sysid: int) -> set[str]:
+        """The other claimants of ``sysid`` whose claim counts (caller holds the lock):
+        members, and not taken back from (see the module doc)."""
+        out = set()
+        for z in self._claimants.get(sysid, ()):
+            if z == self.zid or (sysid, z) in self._distrusted:
+                continue
+            if z not in self._members:
+                self.ignored_claims += 1
+                self._warn_once(
+                    z,
+                    "claims by %s ignored (vehicle %d, ...): it is not a member of the "
+                    "fleet (no %s token); see docs/zenoh.md for Zenoh access control",
+                    z,
+                    sysid,
+                    members_key(self.prefix, z),
+                )
+                continue
+            out.add(z)
+        return out
+
+    def _silent_claim(self, sysid: int, holders: set[str], now: float) -> bool:
+        """Whether ``holders`` have claimed ``sysid`` for longer than ``takeback_s``
+        with no health record of it published for as long."""
+        since = [self._claim_since.get((sysid, z), now) for z in holders]
+        if now - max(since) <= self.takeback_s:
+            return False
+        last = self._last_health.get(sysid)
+        return last is None or now - last[0] > self.takeback_s
+
+    def _take_back(self, sysid: int, holders: set[str]) -> None:
+        with self._lock:
+            for z in holders:
+                self._distrusted.add((sysid, z))
+            self.taken_back += 1
+            self.events.append(
+                {"event": "taken_back", "sysid": sysid, "from": sorted(holders),
+                 "t": time.monotonic()}
+            )  # fmt: skip
+        for z in holders:
+            self._warn_once(
+                f"{z}/{sysid}",
+                "vehicle %d taken back: %s claims it but has published no estimate of it "
+                "for %.1f s (its claim is no longer honoured)",
+                sysid,
+                z,
+                self.takeback_s,
+            )
+
     # -- the claim turn --------------------------------------------------------------------
     def _loop(self) -> None:
         while not self._stop.wait(self.period_s):
@@ -272,7 +370,11 @@ class ClaimManager:
                         load[z] += 1
         for sysid, seen in sorted(self._seen.items()):
             with self._lock:
-                others = self._claimants.get(sysid, set()) - {self.zid}
+                others = self._honoured(sysid)
+            if others and sysid not in owned and self._silent_claim(sysid, others, now):
+                self._take_back(sysid, others)
+                others = set()
+                self._unclaimed_turns[sysid] = 2  # claimed at this turn, by whoever hears it
             if now - seen > self.vehicle_timeout_s:
                 if sysid in owned:
                     self._release(sysid, "silent")
@@ -371,6 +473,7 @@ class ClaimingService(Service):
         sinks: Sequence[Sink] = (),
         *,
         period_s: float = CLAIM_PERIOD_S,
+        admission: Admission | None = None,
     ) -> None:
         from glmav_observer.publish.zenoh_sink import ZenohSink
 
@@ -379,7 +482,14 @@ class ClaimingService(Service):
             for s in sinks:
                 s.close()
             raise ClaimError("--claim needs Zenoh: drop --no-zenoh, or set [zenoh] enabled = true")
-        super().__init__(config, sinks)
+        if zs.decimation.get("health", 1) == 0:
+            for s in sinks:
+                s.close()
+            raise ClaimError(
+                "--claim needs the health records published ([zenoh.decimation] health "
+                "not 0): the other services take back a vehicle whose owner publishes none"
+            )
+        super().__init__(config, sinks, admission=admission)
         self.claims = ClaimManager(
             zs.session, zs.prefix, period_s=period_s, vehicle_timeout_s=zs.vehicle_timeout_s
         )
@@ -463,4 +573,8 @@ class ClaimingService(Service):
     def close(self) -> None:
         # release the claims first: the others take over without waiting for the session
         self.claims.close()
+        if self.claims.ignored_claims:
+            self.counters["claims_ignored_not_member"] = self.claims.ignored_claims
+        if self.claims.taken_back:
+            self.counters["vehicles_taken_back"] = self.claims.taken_back
         super().close()

@@ -9,6 +9,7 @@ their pipe; a worker also reads its own socket of each UDP link the kernel route
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -23,9 +24,13 @@ from glmav_observer.app import DRAIN_MAX_READS, RATE_CHECK_PERIOD_S, STOP_DRAIN_
 from glmav_observer.app_sinks import open_sinks
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
+from glmav_observer.fleet.admission import SharedAdmission
 from glmav_observer.fleet.latency import LatencyHistogram
+from glmav_observer.fleet.reuseport import attach_program
 from glmav_observer.fleet.routing import datagram_sysid, worker_of_sysid
 from glmav_observer.ingest.links import Link
+
+logger = logging.getLogger(__name__)
 
 
 class WorkerError(RuntimeError):
@@ -86,6 +91,7 @@ def worker_main(
     inbox: multiprocessing.connection.Connection,
     outbox: multiprocessing.connection.Connection,
     sockets: dict[str, socket.socket] | None = None,
+    admission: SharedAdmission | None = None,
 ) -> None:
     """A worker process: its own Service and sinks, fed by the parent's batches and, for
     the UDP links the kernel routes (``sockets``: link id -> this worker's socket of the
@@ -103,7 +109,7 @@ def worker_main(
                     return
             except EOFError:  # the parent gave up starting
                 return
-        service = build_service(spec)
+        service = build_service(spec, admission)
     except Exception as err:  # reported to the parent, which exits 2 with it
         outbox.send(("error", str(err)))
         return
@@ -173,6 +179,9 @@ class _WorkerLoop:
                 if batch is None:  # the parent stops us: what our sockets hold is read
                     stop = True
                     break
+                if isinstance(batch, tuple):  # ("reattach", link): see fleet/reuseport.py
+                    self._reattach(batch[1])
+                    continue
                 self.batches += 1
                 for link_id, t_arrival_s, data, peer in batch:
                     service.current_peer = peer
@@ -198,6 +207,23 @@ class _WorkerLoop:
         # links are closed by now: a TCP or serial link with rate requests runs in one
         # process by default, which restores them itself)
         service.restore_rates(self.direct, clock)
+
+    def _reattach(self, lid: str) -> None:
+        """Attach the routing program to the group of ``lid`` again: a foreign socket
+        joined it and may have replaced ours (:class:`~glmav_observer.fleet.reuseport.
+        PortGuard`)."""
+        lk = self.direct.get(lid)
+        fd = lk.fileno() if lk is not None else None
+        if fd is None:
+            return
+        with socket.socket(fileno=os.dup(fd)) as sock:  # the same socket, our own fd
+            try:
+                attach_program(sock, self.spec.workers)
+            except OSError as err:
+                self.service.counters["routing_program_reattach_failed"] += 1
+                logger.warning("routing program not attached again: %s", err)
+                return
+        self.service.counters["routing_program_reattached"] += 1
 
     def _read(self, lid: str, lk: Link, max_reads: int, *, at_stop: bool = False) -> int:
         """Read and estimate up to ``max_reads`` datagrams of a kernel-routed link; those
@@ -250,8 +276,9 @@ class _WorkerLoop:
                 self.outbox.send(("out", via_parent))
 
 
-def build_service(spec: WorkerSpec) -> Service:
-    """The worker's Service with its sinks (a claiming one with ``spec.claim``)."""
+def build_service(spec: WorkerSpec, admission: SharedAdmission | None = None) -> Service:
+    """The worker's Service with its sinks (a claiming one with ``spec.claim``);
+    ``admission``: the service's ``max_vehicles``, shared by its workers."""
     sinks = open_sinks(
         spec.config,
         out=None if spec.out is None else part_path(spec.out, spec.index),
@@ -266,5 +293,5 @@ def build_service(spec: WorkerSpec) -> Service:
     if spec.claim:
         from glmav_observer.fleet.claims import ClaimingService
 
-        return ClaimingService(spec.config, sinks)
-    return Service(spec.config, sinks)
+        return ClaimingService(spec.config, sinks, admission=admission)
+    return Service(spec.config, sinks, admission=admission)

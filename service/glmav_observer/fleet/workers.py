@@ -69,8 +69,14 @@ from typing import Any
 from glmav_observer.app import RATE_CHECK_PERIOD_S, stop_on_signals
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
+from glmav_observer.fleet.admission import SharedAdmission
 from glmav_observer.fleet.latency import LatencyHistogram
-from glmav_observer.fleet.reuseport import ReuseportUnavailableError, bind_group, is_kernel_routable
+from glmav_observer.fleet.reuseport import (
+    PortGuard,
+    ReuseportUnavailableError,
+    bind_group,
+    is_kernel_routable,
+)
 from glmav_observer.fleet.routing import StreamSplitter, datagram_sysid, worker_of_sysid
 from glmav_observer.fleet.worker_process import (
     WorkerError,
@@ -88,6 +94,9 @@ from glmav_observer.ingest.links import (
 )
 
 logger = logging.getLogger(__name__)
+
+#: the summary's per-link counter of :class:`PortGuard`: the most foreign sockets seen
+FOREIGN_SOCKETS_COUNTER = "foreign_sockets_on_port"
 
 #: items per worker gathered before a pipe send
 BATCH = 64
@@ -187,6 +196,10 @@ class ShardedServer:
         self.kernel_routed: list[str] = []
         #: UDP links the kernel could not route: the caller opens them for :meth:`run`
         self.router_links: list[str] = []
+        #: ``max_vehicles`` counted over all workers (issue 31 D12)
+        self.admission = SharedAdmission(specs[0].config.ingest.max_vehicles if specs else 1, ctx)
+        #: sockets of other processes on the kernel-routed ports (issue 31 D3)
+        self.port_guard = PortGuard()
         groups: dict[str, list[socket.socket]] = {}
         try:
             for conn in udp_links:
@@ -199,6 +212,8 @@ class ShardedServer:
                     )
                     self.router_links.append(conn)
             self.kernel_routed = list(groups)
+            for conn, socks in groups.items():
+                self.port_guard.watch(conn, socks)
             for i, spec in enumerate(specs):
                 inbox_r, inbox_w = ctx.Pipe(duplex=False)
                 res_r, res_w = ctx.Pipe(duplex=False)
@@ -209,6 +224,7 @@ class ShardedServer:
                         inbox_r,
                         res_w,
                         {conn: socks[i] for conn, socks in groups.items()},
+                        self.admission,
                     ),
                     name=f"glmav-worker-{spec.index}",
                     daemon=True,
@@ -330,6 +346,10 @@ class ShardedServer:
                     self._flush(w)
             if now >= next_drop_check:
                 self.kernel_drops.check(links)
+                for conn in self.port_guard.check():
+                    # a foreign program replaced ours: worker 0 attaches ours again
+                    with contextlib.suppress(BrokenPipeError, OSError):
+                        self.workers[0].inbox.send(("reattach", conn))
                 next_drop_check = now + RATE_CHECK_PERIOD_S
         self.kernel_drops.check(links)
         for w in self.workers:
@@ -389,6 +409,9 @@ class ShardedServer:
         for r in results:
             latency.merge(r.latency)
         summary = merge_summaries([r.summary for r in results], self.counters)
+        for lid, n in self.port_guard.foreign.items():
+            c = summary.link_counters.setdefault(lid, {})
+            c[FOREIGN_SOCKETS_COUNTER] = max(c.get(FOREIGN_SOCKETS_COUNTER, 0), n)
         for lid, n in self.kernel_drops.drops.items():  # the parent's own reads
             c = summary.link_counters.setdefault(lid, {})
             c[KERNEL_DROPS_COUNTER] = c.get(KERNEL_DROPS_COUNTER, 0) + n

@@ -24,7 +24,7 @@ import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from glmav_observer.ingest.clock import ACCEPT, REORDERED, RESET, ClockConfig, VehicleClock
 from glmav_observer.ingest.convert import (
@@ -164,11 +164,22 @@ class VehicleInput:
         return self.counters
 
 
+class Admission(Protocol):
+    """Who else counts against ``max_vehicles`` (the other workers of one service:
+    :class:`~glmav_observer.fleet.admission.SharedAdmission`)."""
+
+    def acquire(self, sysid: int) -> bool: ...
+
+    def release(self, sysid: int) -> None: ...
+
+
 class Ingest:
     """Turns decoded messages into per-vehicle samples in vehicle-time order."""
 
-    def __init__(self, config: IngestConfig) -> None:
+    def __init__(self, config: IngestConfig, admission: Admission | None = None) -> None:
         self.config = config
+        #: ``max_vehicles`` shared with other processes (None: this ingest's alone)
+        self.admission = admission
         #: the messages that become samples
         self.consumed: frozenset[str] = (
             SAMPLE_MESSAGES if config.control_samples else SAMPLE_MESSAGES - {"SERVO_OUTPUT_RAW"}
@@ -179,14 +190,25 @@ class Ingest:
 
     def _new_vehicle(self, sysid: int, compid: int, t_host_s: float) -> VehicleInput | None:
         cfg = self.config
-        if len(self.vehicles) >= cfg.max_vehicles:
-            idle = min(self.vehicles.values(), key=lambda v: v.t_host_last_s)
-            if t_host_s - idle.t_host_last_s < cfg.evict_idle_s:
+        shared = self.admission
+        admitted = shared is None or shared.acquire(sysid)
+        if len(self.vehicles) >= cfg.max_vehicles or not admitted:
+            # the cap (of this ingest, or of the service's workers together): an idle
+            # vehicle of ours makes room, else the new one is dropped
+            idle = min(self.vehicles.values(), key=lambda v: v.t_host_last_s, default=None)
+            if idle is None or t_host_s - idle.t_host_last_s < cfg.evict_idle_s:
                 self.counters["vehicle_cap_dropped"] += 1
+                if admitted and shared is not None:
+                    shared.release(sysid)  # over this ingest's own cap: the slot is not used
                 return None
             del self.vehicles[idle.sysid]
             self.counters["evicted"] += 1
             logger.warning("vehicle evicted", extra={"sysid": idle.sysid, "new_sysid": sysid})
+            if shared is not None:
+                shared.release(idle.sysid)
+                if not admitted and not shared.acquire(sysid):  # another worker was faster
+                    self.counters["vehicle_cap_dropped"] += 1
+                    return None
         counters: collections.Counter[str] = collections.Counter()
         v = VehicleInput(
             sysid=sysid,

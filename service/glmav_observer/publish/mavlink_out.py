@@ -22,6 +22,13 @@ vehicle it estimates: system id the vehicle's (or ``system_id``), component id
 
 Signed (MAVLink 2 signing, link id 1) when the service has a signing key. Bytes arriving on
 the output link are read and dropped (the vehicle's own streams come in on ``--link``).
+
+A ``udpin:``/``udp:`` output has no destination until a peer sends something: it answers
+the **first** peer only (address and port), for the service's lifetime. Datagrams from any
+other address are dropped, counted (``foreign_peer_datagrams``) and warned about once per
+address, so a local process that sends one byte to the port cannot take the stream over
+(issue 31 D7; before, the last sender got it). To change the peer, restart the service; a
+fixed destination is ``udpout:``.
 """
 
 from __future__ import annotations
@@ -69,6 +76,8 @@ class MavlinkOutStats:
     sent: dict[str, int] = field(default_factory=dict)
     errors: int = 0
     dropped_input_bytes: int = 0
+    #: datagrams on a udpin output from an address that is not the first peer
+    foreign_peer_datagrams: int = 0
 
 
 class MavlinkOutSink:
@@ -85,6 +94,9 @@ class MavlinkOutSink:
             if settings.link.startswith("udpout:")
             else None
         )
+        #: udpin: the first peer heard is the destination, for good (see the module doc)
+        self._pin_peer = settings.link.startswith(("udpin:", "udp:"))
+        self._warned_peers: set[Any] = set()
         self.signing_key = signing_key
         self._mavs: dict[int, Any] = {}
         self._vehicles: dict[int, _Vehicle] = {}
@@ -115,8 +127,32 @@ class MavlinkOutSink:
             self._mavs[src] = mav
         return mav
 
+    def _read_input(self) -> None:
+        """Read and drop what arrived on the output link; on a udpin output, pin the
+        first peer as the destination and refuse the others (caller holds the lock)."""
+        while data := self.link.read():  # replies on the output link: not ours
+            self.stats.dropped_input_bytes += len(data)
+            if not self._pin_peer:
+                continue
+            peer = self.link.peer
+            if self._dest is None:
+                self._dest = peer
+                log.info("mavlink out: answering %s only (the first peer heard)", peer)
+            elif peer != self._dest:
+                self.stats.foreign_peer_datagrams += 1
+                if peer not in self._warned_peers and len(self._warned_peers) < 64:
+                    self._warned_peers.add(peer)
+                    log.warning(
+                        "mavlink out: datagram from %s refused: this udpin output answers "
+                        "%s only (the first peer); restart to change it, or use udpout:",
+                        peer,
+                        self._dest,
+                    )
+
     def _send(self, sysid: int, msg: Any) -> None:
         """Encode and send (caller holds the lock)."""
+        if self._pin_peer and self._dest is None:
+            return  # a udpin output before its peer: nowhere to send
         try:
             self.link.write(bytes(msg.pack(self._mav(sysid))), self._dest)
         except Exception as exc:  # an encoding error must not stop the estimator
@@ -131,8 +167,7 @@ class MavlinkOutSink:
             with self._lock:
                 if self._closed:
                     return
-                while data := self.link.read():  # replies on the output link: not ours
-                    self.stats.dropped_input_bytes += len(data)
+                self._read_input()
                 sysids = sorted(self._vehicles) or [self.settings.system_id or 1]
                 for sysid in sysids:
                     self._send(
@@ -291,4 +326,9 @@ class MavlinkOutSink:
         self._stop.set()
         self._beat.join(timeout=5.0)
         self.link.close()
-        log.info("mavlink out closed: sent %s, errors %d", self.stats.sent, self.stats.errors)
+        log.info(
+            "mavlink out closed: sent %s, errors %d, datagrams from other peers refused %d",
+            self.stats.sent,
+            self.stats.errors,
+            self.stats.foreign_peer_datagrams,
+        )

@@ -9,8 +9,9 @@ Two kinds of flight:
   before; the mode reads MISSION and flight commands are refused (DENIED, with a
   STATUSTEXT saying why). Parameters, telemetry and fault injection work in both.
 
-Modes use PX4's ``custom_mode`` layout (``main_mode << 16 | sub_mode << 24``), so MAVSDK
-names them; the autopilot type stays MAV_AUTOPILOT_GENERIC (this is not PX4):
+Modes use PX4's ``custom_mode`` layout (``main_mode << 16 | sub_mode << 24``) and the
+HEARTBEAT says MAV_AUTOPILOT_PX4, so MAVSDK, MAVProxy and QGroundControl name them (PX4's
+names: HOLD is PX4's LOITER) and set them with DO_SET_MODE:
 
 ==========  ====  ===  =========================================================
 mode        main  sub  behaviour

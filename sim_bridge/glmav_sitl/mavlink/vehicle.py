@@ -4,7 +4,8 @@ Messages (``pymavlink.dialects.v20.common``; one encoder, so one sequence number
 across links), all stamped with the vehicle's own clock (sim time since boot):
 
 ==================  ================================================================
-HEARTBEAT           MAV_TYPE_COAXIAL, MAV_AUTOPILOT_GENERIC; armed while rotors turn
+HEARTBEAT           MAV_TYPE_COAXIAL, MAV_AUTOPILOT_PX4 (its custom_mode layout, so a
+                    GCS names the modes); armed while rotors turn
 RAW_IMU             accel in ``raw_accel_lsb_mps2`` units (default 1 mG = 9.80665e-3
                     m/s^2), gyro in ``raw_gyro_lsb_radps`` (default 1 mrad/s), int16
                     rounded and saturated; FRD; ``time_usec`` = sim time
@@ -271,7 +272,9 @@ class MavlinkVehicle:
             custom = (ap.mode if ap is not None else Mode.MISSION).custom_mode
             msg = mavlink2.MAVLink_heartbeat_message(
                 mavlink2.MAV_TYPE_COAXIAL,
-                mavlink2.MAV_AUTOPILOT_GENERIC,
+                # custom_mode is in PX4's layout: a GCS reads (and sets) the modes by
+                # name only when the autopilot says it is PX4
+                mavlink2.MAV_AUTOPILOT_PX4,
                 mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
                 | (mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0),
                 custom,
@@ -466,7 +469,15 @@ class MavlinkVehicle:
                 p7 = [m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7]
             else:
                 p7 = [m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z]
-            result = self.command(int(m.command), p7)
+            try:
+                result = self.command(int(m.command), p7)
+            except (ValueError, OverflowError) as err:
+                # a NaN or infinite parameter where a number is needed (a message id, a
+                # mode): refused and acknowledged, never the end of the command handling
+                result = int(mavlink2.MAV_RESULT_DENIED)
+                self.statustext(
+                    mavlink2.MAV_SEVERITY_WARNING, f"command {int(m.command)} refused: {err}"[:50]
+                )
             log.debug(
                 "command %d %s from %d/%d: result %d",
                 m.command,

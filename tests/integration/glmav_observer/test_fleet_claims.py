@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import re
 import signal
 import subprocess
@@ -416,3 +417,72 @@ def test_a_double_claim_is_settled_by_rank_at_the_next_turn(router: RouterProces
             m.close()
         for s in sessions:
             s.close()
+
+
+def test_claims_of_a_non_member_flood_are_ignored_with_one_warning(
+    router: RouterProcess, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 31 D2: liveliness tokens glmav/@claim/{1..255}/0 from a session that is not a
+    member stopped every record (31,150 messages, 0 records, no warning)."""
+    from glmav_observer.fleet.claims import ClaimManager, claim_key
+
+    rogue, session = client_session(router.port), client_session(router.port)
+    tokens = [rogue.liveliness().declare_token(claim_key("glmav", s, "0")) for s in range(1, 256)]
+    manager = ClaimManager(session, "glmav", period_s=3600.0)  # turns run by hand
+    try:
+        assert wait_until(lambda: len(manager.claimants(255)) == 1, 10)  # the flood is in
+        with caplog.at_level(logging.WARNING, logger="glmav_observer.fleet.claims"):
+            for _ in range(3):  # the chosen one claims at once; anyone after 2 turns
+                for s in (1, 2, 3):
+                    manager.saw(s)
+                manager.turn()
+        assert manager.owned == {1, 2, 3}
+        assert manager.ignored_claims > 0
+        warned = [r.getMessage() for r in caplog.records if "not a member" in r.getMessage()]
+        assert len(warned) == 1 and "claims by 0 ignored" in warned[0], warned
+    finally:
+        manager.close()
+        for t in tokens:
+            t.undeclare()
+        rogue.close()
+        session.close()
+
+
+def test_a_member_that_publishes_nothing_loses_its_claim(
+    router: RouterProcess, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A member (it holds the members token) claims vehicles 5 and 6 and publishes health
+    for 6 only: 5 is taken back after ``takeback_s`` with a warning, 6 stays its own."""
+    from glmav_observer.fleet.claims import ClaimManager, claim_key, members_key
+    from glmav_observer.publish.zenoh_keys import encode_json
+
+    rogue, session = client_session(router.port), client_session(router.port)
+    entities = [
+        rogue.liveliness().declare_token(members_key("glmav", "quiet")),
+        rogue.liveliness().declare_token(claim_key("glmav", 5, "quiet")),
+        rogue.liveliness().declare_token(claim_key("glmav", 6, "quiet")),
+    ]
+    period_s = 0.1
+    manager = ClaimManager(session, "glmav", period_s=3600.0)
+    manager.period_s, manager.takeback_s = period_s, 4 * period_s  # turns run by hand
+    try:
+        assert wait_until(lambda: len(manager.claimants(6)) == 1, 10)
+        assert wait_until(lambda: "quiet" in manager._members, 10)
+        with caplog.at_level(logging.WARNING, logger="glmav_observer.fleet.claims"):
+            t_end = time.monotonic() + 10 * manager.takeback_s
+            while time.monotonic() < t_end and 5 not in manager.owned:
+                rogue.put("glmav/6/health", encode_json({"sysid": 6, "t_boot_s": 1.0}))
+                manager.saw(5)
+                manager.saw(6)
+                manager.turn()
+                time.sleep(period_s)
+        assert 5 in manager.owned and 6 not in manager.owned
+        assert manager.taken_back == 1
+        warned = [r.getMessage() for r in caplog.records if "taken back" in r.getMessage()]
+        assert len(warned) == 1 and warned[0].startswith("vehicle 5 taken back"), warned
+    finally:
+        manager.close()
+        for e in entities:
+            e.undeclare()
+        rogue.close()
+        session.close()

@@ -222,3 +222,50 @@ def test_vision_speed_estimate_signed_with_the_service_key(
     assert [m.reset_counter for m in vse] == [0] * 5 + [1] * 5
     hb = [m for m in got if m.get_type() == "HEARTBEAT"]
     assert hb and hb[0].type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
+
+
+@pytest.mark.timeout(60)
+def test_udpin_output_answers_only_its_first_peer(free_udp_port: Callable[[], int]) -> None:
+    """Issue 31 D7: a local process that sends one byte to a ``udpin`` output used to get
+    the stream (the last sender won); now the first peer keeps it, the other is refused."""
+    import socket
+
+    from glmav_observer.config import MavlinkOutSettings
+    from glmav_observer.publish.mavlink_out import HEARTBEAT_PERIOD_S, MavlinkOutSink
+
+    port = free_udp_port()
+    sink = MavlinkOutSink(MavlinkOutSettings(enabled=True, link=f"udpin:127.0.0.1:{port}"))
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    thief = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    parser = mavlink2.MAVLink(None)
+
+    def heartbeats(sock: socket.socket, seconds: float) -> int:
+        sock.settimeout(0.1)
+        n = 0
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            try:
+                data = sock.recv(65535)
+            except TimeoutError:
+                continue
+            n += sum(m.get_type() == "HEARTBEAT" for m in parser.parse_buffer(data) or [])
+        return n
+
+    try:
+        gcs.bind(("127.0.0.1", 0))
+        thief.bind(("127.0.0.1", 0))
+        gcs.sendto(b"\x00", ("127.0.0.1", port))
+        # the first peer is pinned at the next heartbeat turn (1 s), then heard at 1 Hz
+        assert heartbeats(gcs, 3 * HEARTBEAT_PERIOD_S + 1.0) >= 1
+        thief.sendto(b"\x00", ("127.0.0.1", port))
+        # 4 periods: >= 2 heartbeats to the first peer even if the thread is late by one,
+        # and none to the thief, whose byte the sink read within the first period
+        got_thief = heartbeats(thief, 4 * HEARTBEAT_PERIOD_S)
+        got_gcs = heartbeats(gcs, 0.2) + heartbeats(gcs, 2 * HEARTBEAT_PERIOD_S)
+        assert got_thief == 0
+        assert got_gcs >= 1
+        assert sink.stats.foreign_peer_datagrams == 1
+    finally:
+        sink.close()
+        gcs.close()
+        thief.close()

@@ -85,3 +85,63 @@ def test_only_the_service_publishes_everyone_logged_in_reads(
         viewer.close()
         rogue.close()
         router.close()
+
+
+def test_only_members_claim_and_answer_states_through_the_acl_router(
+    free_tcp_port: Callable[[], int],
+) -> None:
+    """Issue 31 D1/D2 on the network: a logged-in reader (not the service's user) tries
+    to claim vehicle 1, to join the members and to answer ``glmav/1/state`` with a false
+    state; the router drops all three, while a second service's claim passes."""
+    from glmav_observer.fleet.claims import ClaimManager, claim_key, members_key
+
+    port = free_tcp_port()
+    text = (CONFIGS / "acl-router.json5").read_text(encoding="utf-8")
+    text = text.replace("tcp/0.0.0.0:7447", f"tcp/127.0.0.1:{port}")
+    text = text.replace(
+        '"configs/zenoh/credentials.example.txt"',
+        json.dumps(str(CONFIGS / "credentials.example.txt")),
+    )
+    router = zenoh.open(zenoh.Config.from_json5(text))
+    creds = _credentials()
+    service = client_session(port, **_login("glmav-service", creds["glmav-service"]))
+    friend = client_session(port, **_login("glmav-service", creds["glmav-service"]))
+    rogue = client_session(port, **_login("ground-viewer", creds["ground-viewer"]))
+    queried: list[str] = []
+    false_state = {
+        "schema": "glmav.state/1",
+        "sysid": 1,
+        "velocity": {"active": {"t_boot_s": 10.0, "v_ned_mps": [40.0, -40.0, 15.0]}},
+        "health": None,
+    }
+
+    def answer(q: zenoh.Query) -> None:
+        queried.append(str(q.key_expr))
+        q.reply("glmav/1/state", json.dumps(false_state))
+
+    entities = [
+        rogue.liveliness().declare_token(members_key("glmav", "rogue")),
+        rogue.liveliness().declare_token(claim_key("glmav", 1, "rogue")),
+        rogue.declare_queryable("glmav/1/state", answer),
+        friend.liveliness().declare_token(members_key("glmav", "friend")),
+        friend.liveliness().declare_token(claim_key("glmav", 2, "friend")),
+    ]
+    manager = ClaimManager(service, "glmav", period_s=3600.0)  # turns run by hand
+    try:
+        # the service's own claims pass the router: the friend's claim arrives
+        assert wait_until(lambda: manager.claimants(2) == {"friend"}, 10)
+        manager.saw(1)
+        manager._query_states(set())
+        # the state query's timeout is 2 s: its replies (none may come) are in by then
+        assert wait_until(lambda: manager.state_replies > 0, 3.0) is False
+        assert manager.claimants(1) == set()
+        assert "rogue" not in manager._members and "friend" in manager._members
+        assert queried == []  # the router never forwards a query to a reader's queryable
+        assert manager.take_seed(1) is None
+    finally:
+        manager.close()
+        for e in entities:
+            e.undeclare()
+        for s in (service, friend, rogue):
+            s.close()
+        router.close()

@@ -168,8 +168,18 @@ def test_mavproxy_reads_sets_params_arms_takes_off_and_lands(
             rel_alt_mm = int(m.group(1))
             time.sleep(0.2)  # the console is polled; the vehicle settles meanwhile
         assert rel_alt_mm == pytest.approx(5000, abs=50)
-        gcs.send("long NAV_LAND")
-        gcs.expect(r"NAV_LAND: ACCEPTED", 10.0)
+        # issue 31 D14: HEARTBEAT says PX4, so MAVProxy names the modes (HOLD is PX4's
+        # LOITER). Its `mode NAME` hands pymavlink PX4's (base, main, sub) tuple where a
+        # number is expected ("required argument is not a float", MAVProxy 1.8.75 with any
+        # PX4 vehicle): the mode is set with PX4's DO_SET_MODE numbers (main 4, sub 6)
+        gcs.send("status HEARTBEAT")
+        m = gcs.expect(r"HEARTBEAT \{.*autopilot : (\d+)", 5.0)
+        assert int(m.group(1)) == 12  # MAV_AUTOPILOT_PX4
+        gcs.send("long DO_SET_MODE 1 4 6")
+        gcs.expect(r"DO_SET_MODE: ACCEPTED", 10.0)
+        gcs.expect(r"^(\S+> )*Mode LAND$", 5.0)
+        shown = {ln.rsplit(" ", 1)[-1] for ln in gcs.seen if re.search(r"(^|> )Mode \S+$", ln)}
+        assert shown == {"LOITER", "TAKEOFF", "LAND"}, gcs.seen[-30:]
         gcs.expect(r"AP: landed", 20.0)
         gcs.expect(r"AP: disarmed", 5.0)
     finally:

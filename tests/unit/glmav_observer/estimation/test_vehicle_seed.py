@@ -179,3 +179,51 @@ def test_a_state_without_an_active_estimate_is_refused() -> None:
         seed_from_state(bad)
     assert math.isnan(seed_from_state({"velocity": {"active": {
         "t_boot_s": 1.0, "v_ned_mps": [None, 0.0, 0.0]}}}).v_ned_mps["active"][0])  # fmt: skip
+
+
+def _forged(state: dict[str, object], v_ned_mps: list[float]) -> dict[str, object]:
+    """The state with every estimate replaced by ``v_ned_mps`` and north "isolated" (the
+    rogue peer of issue 31 D1: 40, -40, 15 m/s against a true ~0.5 m/s)."""
+    forged = json.loads(json.dumps(state))
+    for rec in forged["velocity"].values():
+        rec["v_ned_mps"] = list(v_ned_mps)
+    forged["health"]["isolated_faults"] = [
+        {"axis": "n", "kind": "bias", "t_detect_s": T_KILL_S - 1.0, "t_onset_s": None}
+    ]
+    forged["health"]["active_config"] = "c1"
+    return forged
+
+
+def test_a_forged_state_is_dropped_at_the_first_measurement(owner: list[Record]) -> None:
+    state = _state([r for r in owner if r.t_boot_s <= T_KILL_S])
+    t1 = T_KILL_S + GAP_S
+    b = VehicleEstimator(1, EstimatorConfig())
+    b.seed(seed_from_state(_forged(state, [40.0, -40.0, 15.0])))
+    new = _run_from(b, t1)
+    assert b.counters["estimator_seeded"] == 1
+    assert b.counters["estimator_seed_disagreed"] == 1
+    assert b.seed_outcome is not None and b.seed_outcome.startswith("disagreed"), b.seed_outcome
+    act = _active(new)
+    # the first measurement (30 Hz: within 34 ms of the seed) drops it: no estimate after
+    # it is further than the cold start's warm-up from the truth (0.5 m/s east bias +
+    # the γ transient, test_a_cold_start_mid_fault_takes_the_biased_measurement)
+    t_first_meas = t1 + 1.0 / 30.0 + 0.001
+    later = [r for r in act if r.t_boot_s > t_first_meas]
+    assert later
+    worst = max(
+        abs(r.v_ned_mps[j] - float(truth(r.t_boot_s)[0][j])) for r in later for j in range(3)
+    )
+    assert worst < 1.0, worst
+    assert b.active_config == "full"  # the forged isolation of north is gone
+
+
+def test_a_true_state_passes_the_check(owner: list[Record]) -> None:
+    """The genuine hand-over mid-fault (east biased by 0.5 m/s, 0.8 s gap) is inside the
+    gate: 5σ with σ = sqrt(0.05² + 0.03² + (1 m/s² · (0.8 + 0.5) s)²) = 1.3 m/s."""
+    state = _state([r for r in owner if r.t_boot_s <= T_KILL_S])
+    b = VehicleEstimator(1, EstimatorConfig())
+    b.seed(seed_from_state(state))
+    _run_from(b, T_KILL_S + GAP_S)
+    assert b.seed_outcome == "continued"
+    assert b.counters["estimator_seed_disagreed"] == 0
+    assert b.active_config == "c3"
