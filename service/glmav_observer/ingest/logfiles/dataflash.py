@@ -50,7 +50,7 @@ def read_dataflash(path: str | Path, *, text: bool = False) -> LogStreams:
     try:
         reader = _open(path, text)
     except Exception as err:  # DFReader raises whatever its parser hits on a damaged header
-        raise LogError(f"{path}: not a readable dataflash log ({err})") from err
+        raise LogError(f"{path}: damaged dataflash log: {type(err).__name__}: {err}") from err
     att: list[tuple[float, float, float, float]] = []
     imu: list[tuple[float, ...]] = []
     gps: list[tuple[float, float, float, float]] = []
@@ -96,7 +96,7 @@ def read_dataflash(path: str | Path, *, text: bool = False) -> LogStreams:
     except LogError:
         raise
     except Exception as err:  # a truncated or damaged message body
-        raise LogError(f"{path}: damaged dataflash log ({type(err).__name__}: {err})") from err
+        raise LogError(f"{path}: damaged dataflash log: {type(err).__name__}: {err}") from err
     if not (att or imu or gps):
         raise LogError(f"{path}: no ATT, IMU or GPS messages: not a flight log this reads")
     s = LogStreams(format="dataflash", vehicle=vehicle or "ArduPilot", params=params)
