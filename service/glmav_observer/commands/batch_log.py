@@ -126,6 +126,9 @@ def process_log(
                 velocity_source=fl.velocity_source,
                 gps_delay_ms=round(fl.gps_delay_s * 1e3, 1),
                 gps_delay_source=fl.gps_delay_source,
+                # samples dropped while reading, and what the reader found damaged
+                # (pymavlink's reports: counted here, not printed)
+                dropped_while_reading=", ".join(f"{k}={v}" for k, v in fl.dropped.items()),
             )
             truth = v.rmse_ned_mps.get("active") if v is not None and v.truth_samples else None
             ref = fl.rmse_vs_reference_ned_mps.get("active")

@@ -17,7 +17,13 @@ Messages used (ArduPilot's log message reference; units as logged):
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
+import os
+import re
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +53,52 @@ def _open(path: Path, text: bool) -> Any:
 def read_dataflash(path: str | Path, *, text: bool = False) -> LogStreams:
     """The streams of an ArduPilot dataflash log (:class:`LogError` if it cannot be read)."""
     path = Path(path)
+    noise = io.StringIO()
+    try:
+        with _captured_output(noise):
+            s = _read(path, text)
+    except LogError as err:
+        reports = noise.getvalue().count("\n")
+        if not reports or "damaged" in str(err):
+            raise
+        raise LogError(f"{err} (damaged: pymavlink reported {reports} bad blocks)") from err
+    # what DFReader printed about a damaged log: counted here, not printed
+    printed = noise.getvalue()
+    s.drop("dataflash_messages_not_parsed", printed.count("Failed to parse "))
+    s.drop("dataflash_bad_headers", printed.count("bad header "))
+    s.drop(
+        "dataflash_bad_bytes_skipped",
+        sum(int(n) for n in re.findall(r"Skipped (\d+) bad bytes", printed)),
+    )
+    return s
+
+
+@contextlib.contextmanager
+def _captured_output(into: io.StringIO) -> Iterator[None]:
+    """What is printed on stdout and stderr inside, by Python or by C code (pymavlink's
+    indexer writes to the descriptors), goes to ``into`` (read as it is written: a
+    damaged log can make it print a line per bad block)."""
+    import tempfile
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            with contextlib.redirect_stdout(into), contextlib.redirect_stderr(into):
+                yield
+        finally:
+            for fd, old in ((1, saved[0]), (2, saved[1])):
+                os.dup2(old, fd)
+                os.close(old)
+            tmp.seek(0)
+            into.write(tmp.read().decode("utf-8", "replace"))
+
+
+def _read(path: Path, text: bool) -> LogStreams:
+    """:func:`read_dataflash`, its output captured by the caller."""
     try:
         reader = _open(path, text)
     except Exception as err:  # DFReader raises whatever its parser hits on a damaged header
