@@ -164,6 +164,7 @@ def _write_whole(target: Path, write: Callable[[Path], object]) -> str | None:
     on failure the hidden file is removed and the reason returned."""
     partial = target.with_name(f".{target.name}.partial")
     try:
+        partial.unlink(missing_ok=True)  # a planted link there is removed, not followed
         write(partial)
         os.replace(partial, target)
     except OSError as err:
