@@ -40,6 +40,7 @@ __all__ = [
     "Check",
     "ConfigError",
     "TableReader",
+    "file_kind",
     "load_toml",
     "one_of",
     "read_limited",
@@ -103,7 +104,10 @@ MAX_NESTING: Final = 32
 _BOM = b"\xef\xbb\xbf"
 
 
-def _kind(mode: int) -> str:
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, for a message ("a FIFO", "a device"...)."""
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
     if stat.S_ISDIR(mode):
         return "a directory"
     if stat.S_ISFIFO(mode):
@@ -129,7 +133,7 @@ def read_limited(path: str | Path, max_bytes: int = MAX_FILE_BYTES, *, key: str 
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise ConfigError(p, key, f"is {_kind(st.st_mode)}, not a regular file: refused")
+            raise ConfigError(p, key, f"is {file_kind(st.st_mode)}, not a regular file: refused")
         if st.st_size > max_bytes:
             raise ConfigError(p, key, f"{st.st_size:,} bytes: larger than {max_bytes:,}: refused")
         chunks = []

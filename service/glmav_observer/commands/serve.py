@@ -178,13 +178,15 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, LinkError) as err:
         for sink in sinks:
             sink.close()
+        _discard_empty_files(sinks)
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     if args.claim:
         return _main_claim(config, sinks, links)
     try:
         summary = serve(config, sinks, links)
-    except LinkError as err:
+    except LinkError as err:  # a link that would not open: nothing was served
+        _discard_empty_files(sinks)
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     print(summary.to_text())
@@ -192,6 +194,15 @@ def main(args: argparse.Namespace) -> int:
         print("glmav-observer serve: an output failed: see SINK FAILED above", file=sys.stderr)
         return 1
     return 0
+
+
+def _discard_empty_files(sinks: list[Sink]) -> None:
+    """Remove the ``--out`` file a start that failed created (no empty output is left)."""
+    from glmav_observer.publish.file_sink import FileSink
+
+    for sink in sinks:
+        if isinstance(sink, FileSink) and sink.rows == 0:
+            sink.path.unlink(missing_ok=True)
 
 
 def _zenoh_flags(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:

@@ -24,30 +24,18 @@ import os
 import stat
 from pathlib import Path
 
+from glmav_toml import file_kind
+
 
 class OutputFileError(ValueError):
     """An output path that is refused (the message names it and says why)."""
-
-
-def _kind(mode: int) -> str:
-    if stat.S_ISLNK(mode):
-        return "a symbolic link"
-    if stat.S_ISDIR(mode):
-        return "a directory"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "not a regular file"
 
 
 def _refuse_existing(path: Path, st: os.stat_result, force: bool) -> None:
     """Raise for an existing ``path`` (``st``: its ``lstat``) that may not be overwritten."""
     if not stat.S_ISREG(st.st_mode):
         raise OutputFileError(
-            f"{path}: is {_kind(st.st_mode)}: refused (an output is a regular file it creates)"
+            f"{path}: is {file_kind(st.st_mode)}: refused (an output is a regular file it creates)"
         )
     if st.st_nlink > 1:
         raise OutputFileError(f"{path}: has {st.st_nlink} hard links: refused")
@@ -121,7 +109,7 @@ def open_existing(
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise OutputFileError(f"{p}: is {_kind(st.st_mode)}: refused")
+            raise OutputFileError(f"{p}: is {file_kind(st.st_mode)}: refused")
         if expect is not None and (st.st_dev, st.st_ino) != (expect.st_dev, expect.st_ino):
             raise OutputFileError(f"{p}: was replaced while being opened: refused")
         if truncate:
