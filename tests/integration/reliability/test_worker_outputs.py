@@ -16,6 +16,7 @@ and ``--workers 1``), on real processes, sockets and files.
 from __future__ import annotations
 
 import json
+import os
 import resource
 import signal
 import socket
@@ -38,10 +39,17 @@ def tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _serve(
-    port: int, out: Path, workers: int, *extra: str, limit_bytes: int | None = None
+    port: int,
+    out: Path,
+    workers: int,
+    *extra: str,
+    limit_bytes: int | None = None,
+    zenoh: bool = False,
 ) -> subprocess.Popen[str]:
-    """``serve`` (Zenoh off: tests run side by side); ``limit_bytes``: a file-size limit
-    (RLIMIT_FSIZE, inherited by the workers) that plays the full disk."""
+    """``serve`` (Zenoh off unless ``zenoh``: then with a service id of its own, as
+    tests run side by side); ``limit_bytes``: a file-size limit (RLIMIT_FSIZE,
+    inherited by the workers) that plays the full disk. In a session of its own, as a
+    terminal's process group."""
 
     def limit() -> None:  # in the child, before exec
         if limit_bytes is not None:
@@ -49,10 +57,12 @@ def _serve(
             resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
 
     # the test process starts no threads before this fork (what the rule warns about)
+    z = ["--service-id", f"rel-files-{port}"] if zenoh else ["--no-zenoh"]
     return subprocess.Popen(
         [OBS, "serve", "--workers", str(workers), "--link", f"udpin:127.0.0.1:{port}",
-         "--out", str(out), "--no-zenoh", *extra],
+         "--out", str(out), *z, *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=limit,  # noqa: PLW1509
+        start_new_session=True,
     )  # fmt: skip
 
 
@@ -148,18 +158,21 @@ def test_a_full_disk_gives_the_summary_whole_lines_and_exit_1_in_every_mode(
 def test_sighup_stops_serve_as_sigterm_does(
     workers: int, tlog: Path, tmp_path: Path, free_udp_port: Callable[[], int]
 ) -> None:
+    """As a closed terminal sends it: to the whole process group (the workers too),
+    with Zenoh on."""
     out = tmp_path / "serve.jsonl"
     port = free_udp_port()
-    serve = _serve(port, out, workers)
+    serve = _serve(port, out, workers, zenoh=True)
     try:
         wait_bound_udp(port, serve)
         _fly(tlog, port)
     finally:
-        serve.send_signal(signal.SIGHUP)
+        os.killpg(serve.pid, signal.SIGHUP)
         stdout, stderr = serve.communicate(timeout=60)
     assert serve.returncode == 0, stderr  # was -1 (killed by the signal): no summary
-    assert "'signal': 'SIGHUP'" in stderr or "SIGHUP" in stderr
+    assert "stopping (signal=SIGHUP)" in stderr
     assert stdout.startswith("messages ") and "Traceback" not in stderr
+    assert stderr.count("zenoh sink closed: ") == workers  # every session closed
     rows = _rows(out)
     # every vehicle's records, up to the last buffer (the workers flushed at stop)
     assert {r["sysid"] for r in rows} == set(range(1, VEHICLES + 1))
