@@ -14,23 +14,36 @@ the reason a value is refused::
 Every refusal is a :class:`ConfigError` naming the file, the dotted key and the reason
 (``sitl.toml: imu.rate_hz: must be in (0, 10000], got -1.0``); the commands print it and
 exit 2.
+
+A file is read by :func:`read_limited` before it is parsed: a regular file (a FIFO, a
+device such as ``/dev/zero`` or a directory is refused, without blocking: opened with
+``O_NONBLOCK`` and checked with ``fstat`` before a byte is read), at most
+:data:`MAX_FILE_BYTES`; :func:`load_toml` then refuses a UTF-8 byte order mark, text
+that is not UTF-8 and arrays or inline tables nested deeper than :data:`MAX_NESTING`,
+each with its reason.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import stat
 import tomllib
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Final
 
 __all__ = [
+    "MAX_FILE_BYTES",
+    "MAX_NESTING",
     "REQUIRED",
     "Check",
     "ConfigError",
     "TableReader",
+    "file_kind",
     "load_toml",
     "one_of",
+    "read_limited",
     "within",
 ]
 
@@ -84,21 +97,107 @@ REQUIRED: Final[Any] = _Required()
 _KIND_NAMES = {float: "a number", int: "an integer", bool: "true or false", str: "a string"}
 
 
-def load_toml(path: str | Path) -> dict[str, Any]:
-    """Parse ``path`` as TOML; a missing, unreadable or malformed file is a ConfigError."""
+#: The largest configuration file read (the project's largest is ~10 kB).
+MAX_FILE_BYTES: Final = 1_000_000
+#: The deepest nesting of arrays and tables accepted (the project's files use 3).
+MAX_NESTING: Final = 32
+_BOM = b"\xef\xbb\xbf"
+
+
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, for a message ("a FIFO", "a device"...)."""
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
+    if stat.S_ISDIR(mode):
+        return "a directory"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def read_limited(path: str | Path, max_bytes: int = MAX_FILE_BYTES, *, key: str = "-") -> bytes:
+    """The bytes of the regular file ``path``, at most ``max_bytes``; a
+    :class:`ConfigError` (about ``key``) for anything else, never a wait or an
+    unbounded read."""
     p = Path(path)
     try:
-        return tomllib.loads(p.read_text(encoding="utf-8"))
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
-        raise ConfigError(p, "-", "file not found") from None
+        raise ConfigError(p, key, "file not found") from None
+    except OSError as err:
+        raise ConfigError(p, key, f"cannot read: {err.strerror}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ConfigError(p, key, f"is {file_kind(st.st_mode)}, not a regular file: refused")
+        if st.st_size > max_bytes:
+            raise ConfigError(p, key, f"{st.st_size:,} bytes: larger than {max_bytes:,}: refused")
+        chunks = []
+        n = 0
+        while n <= max_bytes:  # the file may grow while read: never more than the limit
+            chunk = os.read(fd, max_bytes + 1 - n)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            n += len(chunk)
+        if n > max_bytes:
+            raise ConfigError(p, key, f"larger than {max_bytes:,} bytes: refused")
+        return b"".join(chunks)
+    except OSError as err:
+        raise ConfigError(p, key, f"cannot read: {err.strerror}") from None
+    finally:
+        os.close(fd)
+
+
+def _depth(value: Any) -> int:
+    """How deeply ``value`` nests lists and tables (a scalar: 0), without recursion."""
+    deepest = 0
+    stack = [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            stack.extend((x, d + 1) for x in v.values())
+        elif isinstance(v, list):
+            stack.extend((x, d + 1) for x in v)
+        else:
+            deepest = max(deepest, d)
+            continue
+        deepest = max(deepest, d + 1)
+        if deepest > MAX_NESTING + 1:
+            break
+    return deepest
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Parse ``path`` as TOML; a missing, unreadable, oversized, non-regular or malformed
+    file is a ConfigError saying why."""
+    p = Path(path)
+    data = read_limited(p)
+    if data.startswith(_BOM):
+        raise ConfigError(
+            p, "-", "starts with a UTF-8 byte order mark (BOM), which TOML does not allow: "
+            "save it as UTF-8 without BOM"
+        )  # fmt: skip
+    try:
+        text = data.decode("utf-8")
     except UnicodeDecodeError as err:
         raise ConfigError(
             p, "-", f"not UTF-8 text (byte {err.start}: {err.object[err.start]:#04x})"
         ) from None
-    except OSError as err:
-        raise ConfigError(p, "-", f"cannot read: {err.strerror}") from None
+    deep = f"arrays or tables nested deeper than {MAX_NESTING} levels: refused"
+    try:
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(p, "-", f"not valid TOML: {err}") from None
+    except RecursionError:  # the parser recurses once per level: far too deep
+        raise ConfigError(p, "-", deep) from None
+    if _depth(doc) - 1 > MAX_NESTING:  # the document itself is not a level
+        raise ConfigError(p, "-", deep)
+    return doc
 
 
 class TableReader:

@@ -7,7 +7,7 @@ In-process API (used by the commands, the demo, the benchmarks and the tests):
   stop_event)`` serves open links until the event is set; ``summary()`` gives a
   :class:`~glmav_observer.app_summary.ServiceSummary`; ``close()`` closes every sink
   (flushing files).
-- :func:`serve`: open links and serve them until SIGINT/SIGTERM.
+- :func:`serve`: open links and serve them until SIGINT/SIGTERM/SIGHUP.
 
 Its parts, one module each: :mod:`glmav_observer.app_sinks` (the sinks a configuration asks
 for), :mod:`glmav_observer.app_replay` (``.tlog`` and flight-log replays through the
@@ -616,7 +616,7 @@ def serve(
     service: Service | None = None,
     ready: threading.Event | None = None,
 ) -> ServiceSummary:
-    """Open ``links``, serve until SIGINT/SIGTERM (or ``stop_event``), close everything.
+    """Open ``links``, serve until SIGINT/SIGTERM/SIGHUP (or ``stop_event``), close everything.
 
     ``service``: a Service built by the caller over ``sinks`` (e.g. a claiming one).
     ``ready`` is set once every link is open (a caller in another thread may then start
@@ -641,8 +641,9 @@ def serve(
 
 @contextlib.contextmanager
 def stop_on_signals(stop: threading.Event) -> Iterator[None]:
-    """Inside: SIGINT and SIGTERM set ``stop`` (logged) instead of interrupting; the
-    previous handlers come back on leaving. Only in the main thread (Python delivers
+    """Inside: SIGINT, SIGTERM and SIGHUP (a closed terminal, a service manager's reload:
+    there is nothing to reload, so it stops as SIGTERM does) set ``stop`` (logged) instead
+    of interrupting; the previous handlers come back on leaving. Only in the main thread (Python delivers
     signals there); elsewhere a no-op."""
     previous: dict[signal.Signals, Any] = {}
 
@@ -651,7 +652,7 @@ def stop_on_signals(stop: threading.Event) -> Iterator[None]:
         stop.set()
 
     if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             previous[sig] = signal.signal(sig, on_signal)
     try:
         yield

@@ -10,6 +10,7 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from glmav_observer.app import Service
 from glmav_observer.app_summary import ServiceSummary, VehicleSummary
@@ -23,6 +24,9 @@ from glmav_observer.ingest.framing import (
 )
 from glmav_observer.publish.sink import Sink
 from glmav_observer.records import CONFIGS, Record, VelocityRecord
+
+if TYPE_CHECKING:
+    from glmav_observer.ingest.logfiles import FlightLog
 
 
 def replay_tlog(
@@ -166,7 +170,7 @@ class LogReplaySummary:
 
 
 def replay_flight_log(
-    path: str | Path,
+    path: str | Path | FlightLog,
     config: ServiceConfig,
     sinks: Sequence[Sink] = (),
     *,
@@ -178,10 +182,17 @@ def replay_flight_log(
 
     Raises :class:`~glmav_observer.ingest.logfiles.LogError` for a log it cannot read (the
     sinks are closed then too). Deterministic: the samples are sorted by time of validity.
+    ``path`` may be a log already read (:func:`~glmav_observer.ingest.logfiles.read_flight_log`:
+    ``replay`` reads it before it creates its outputs).
     """
     import numpy as np
 
-    from glmav_observer.ingest.logfiles import LOG_SYSID, VELOCITY_SOURCES, read_flight_log
+    from glmav_observer.ingest.logfiles import (
+        LOG_SYSID,
+        VELOCITY_SOURCES,
+        FlightLog,
+        read_flight_log,
+    )
     from glmav_observer.ingest.logfiles.streams import in_flight_mask
     from glmav_observer.ingest.rates import RateMonitor
     from glmav_observer.ingest.samples import TruthSample
@@ -191,7 +202,10 @@ def replay_flight_log(
     try:
         if velocity_source not in VELOCITY_SOURCES:
             raise ValueError(f"velocity source must be gps or ekf, got {velocity_source!r}")
-        log = read_flight_log(path, velocity_source, gps_delay_s=gps_delay_s)  # type: ignore[arg-type]
+        if isinstance(path, FlightLog):
+            log = path
+        else:
+            log = read_flight_log(path, velocity_source, gps_delay_s=gps_delay_s)  # type: ignore[arg-type]
         sysid = LOG_SYSID
         monitor = RateMonitor({}, window_s=config.ingest.rate_window_s)
         est = VehicleEstimator(sysid, config.estimation, rates_fn=monitor.rates)
@@ -255,7 +269,7 @@ def replay_flight_log(
     finally:
         service.close()
     return LogReplaySummary(
-        path=str(path),
+        path=str(log.path),
         format=log.format,
         vehicle=log.vehicle,
         duration_s=log.duration_s(),

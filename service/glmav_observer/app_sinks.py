@@ -5,33 +5,15 @@ checks of an output before it is opened (:class:`OutputError`).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from glmav_observer.config import ServiceConfig
 from glmav_observer.configurations import AIDED, CONFIGS
 from glmav_observer.publish.file_sink import FileSink
+from glmav_observer.publish.output_files import check_output_target
 from glmav_observer.publish.sink import Sink
 
 
 class OutputError(ValueError):
     """An output the user named cannot be written (the message says which and why)."""
-
-
-def check_output_file(path: str | Path) -> None:
-    """Refuse an output file whose directory is missing (it is not created) or that
-    cannot be written (a read-only file system, no permission): :class:`OutputError`."""
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"{p}: directory {parent} does not exist (it is not created)")
-    existed = p.exists()
-    try:
-        with p.open("ab"):
-            pass
-    except OSError as err:
-        raise OutputError(f"{p}: cannot write: {err.strerror}") from None
-    if not existed:
-        p.unlink(missing_ok=True)
 
 
 def check_tcp_port_free(host: str, port: int, what: str) -> None:
@@ -88,17 +70,21 @@ def open_sinks(
     recording_name: str | None = None,
     rerun_fallback_save_path: str | None = None,
     zenoh_check_unique: bool = True,
+    force: bool = False,
+    out_shared: bool = False,
 ) -> list[Sink]:
     """The sinks asked for by the config and the command line (closed by the caller).
 
     ``rerun_fallback_save_path``: ``--rerun spawn`` without a display saves there instead
     (None: the Rerun sink's default). ``zenoh_check_unique``: see
-    :func:`~glmav_observer.publish.zenoh_sink.open_zenoh_sink`."""
+    :func:`~glmav_observer.publish.zenoh_sink.open_zenoh_sink`. ``force``: overwrite an
+    existing regular file (:mod:`glmav_observer.publish.output_files`); ``out_shared``:
+    append to the file ``out`` that other workers share (``serve --workers N``)."""
     sinks: list[Sink] = []
     try:
         path = out if out is not None else config.out
         if path:
-            sinks.append(FileSink(path))
+            sinks.append(FileSink(path, force=force, shared=out_shared))
         z_on = config.zenoh.enabled if zenoh_enabled is None else zenoh_enabled
         if z_on:
             from glmav_observer.publish.zenoh_sink import open_zenoh_sink
@@ -130,7 +116,7 @@ def open_sinks(
             )
 
             if mode.startswith("save:"):
-                check_output_file(mode.removeprefix("save:"))
+                check_output_target(mode.removeprefix("save:"), force=force)
             elif mode == "serve":
                 for port in (DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT):
                     check_tcp_port_free(config.rerun.serve_bind, port, "--rerun serve")

@@ -45,7 +45,7 @@ from glmav_observer.reads import (
     Reads,
     rate_reason,
 )
-from glmav_toml import Check, ConfigError, TableReader, load_toml, one_of, within
+from glmav_toml import Check, ConfigError, TableReader, load_toml, one_of, read_limited, within
 
 #: The rates the estimator needs (``[rates.min_hz]``): a stream below is asked for.
 #: IMU: the FDI's ``min_imu_rate_hz`` (its residual tests need it); ATTITUDE: 10 Hz (the
@@ -524,6 +524,10 @@ def _read_rate(table: TableReader, stream: str, default: float) -> float:
     return value
 
 
+#: A signing key file holds 64 hex digits and a newline: anything much larger is not one.
+SIGNING_KEY_FILE_MAX_BYTES = 4096
+
+
 def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:
     """32 bytes from 64 hex digits, given inline or in a file (relative to ``file``)."""
     if key_hex and key_file:
@@ -535,9 +539,14 @@ def _signing_key(file: str, key_hex: str, key_file: str) -> bytes | None:
     if key_file:
         where = "security.signing_key_file"
         kp = Path(key_file) if Path(key_file).is_absolute() else Path(file).parent / key_file
+        # bounded, regular files only (a key file at /dev/zero must not fill the memory)
         try:
-            text = kp.read_text(encoding="ascii").strip()
-        except (OSError, UnicodeDecodeError) as err:
+            raw = read_limited(kp, SIGNING_KEY_FILE_MAX_BYTES)
+        except ConfigError as err:
+            raise ConfigError(file, where, f"cannot read {kp}: {err.reason}") from None
+        try:
+            text = raw.decode("ascii").strip()
+        except UnicodeDecodeError as err:
             raise ConfigError(file, where, f"cannot read {kp}: {err}") from None
     if not text:
         return None

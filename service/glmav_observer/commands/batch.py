@@ -15,8 +15,13 @@ Every file given (directories are searched recursively) is replayed like ``repla
 Logs run in a local process pool (``--workers``, default the CPU count); with
 ``--cluster ADDRESS`` they run on a Dask distributed cluster instead (the scheduler's
 address, e.g. ``tcp://127.0.0.1:8786``; the log paths must be readable by its workers).
-A log that fails is reported in the summary and does not stop the batch. Exit codes: 0
-done (even with failed logs), 2 bad arguments, output folder, configuration or cluster.
+A log that fails is reported in the summary and does not stop the batch. Every output
+file is whole or absent (written under a hidden name, renamed when complete); pymavlink's
+reports about a damaged dataflash log are counted in the summary, not printed. Exit
+codes: 0 every log replayed, 1 some logs could not be replayed (the others' outputs are
+written), 2 bad arguments, output folder, configuration or cluster, or an output that
+could not be written (a full disk: the summary is still printed, the message names the
+files).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from glmav_observer.commands.batch_log import process_log
-from glmav_observer.commands.batch_report import write_outputs
+from glmav_observer.commands.batch_report import BatchWriteError, write_outputs
 
 
 def register(sub: Any) -> None:
@@ -128,7 +133,11 @@ def run_batch(
                 if progress is not None:
                     progress(len(results), len(jobs))
     results.sort(key=lambda r: ids.index(r["row"]["log_id"]))
-    write_outputs(results, out)
+    try:
+        write_outputs(results, out)
+    except BatchWriteError as err:
+        err.rows = [r["row"] for r in results]
+        raise
     return [r["row"] for r in results]
 
 
@@ -166,6 +175,7 @@ def main(args: argparse.Namespace) -> int:
     except OSError as err:
         print(f"glmav-observer batch: {out}: {err.strerror}", file=sys.stderr)
         return 2
+    write_error: str | None = None
     try:
         rows = run_batch(
             files,
@@ -176,12 +186,17 @@ def main(args: argparse.Namespace) -> int:
             cluster=args.cluster,
             progress=None if args.no_progress else _progress,
         )
+    except BatchWriteError as err:  # the logs ran: their summary is still printed
+        rows, write_error = err.rows, str(err)
     except (OSError, TimeoutError) as err:
         where = f"cluster {args.cluster}" if args.cluster else "process pool"
         print(f"glmav-observer batch: {where}: {err}", file=sys.stderr)
         return 2
     n_err = sum(1 for r in rows if r.get("error"))
-    print(f"{len(rows)} logs, {n_err} not replayed; wrote {out}/records/, summary.csv, report.html")
+    wrote = "could not write everything" if write_error else "wrote"
+    print(
+        f"{len(rows)} logs, {n_err} not replayed; {wrote} {out}/records/, summary.csv, report.html"
+    )
     if skipped:
         print(f"skipped {skipped} files in the folders given that are not logs")
     for r in rows:
@@ -195,4 +210,10 @@ def main(args: argparse.Namespace) -> int:
             )
         )
         print(f"  {r['log_id']}: {state}")
+    if write_error:
+        print(f"glmav-observer batch: {write_error}", file=sys.stderr)
+        return 2
+    if n_err:
+        print(f"glmav-observer batch: {n_err} of {len(rows)} logs not replayed", file=sys.stderr)
+        return 1
     return 0

@@ -129,6 +129,9 @@ def process_log(
                 vehicle_type=fl.vehicle_type,
                 reference=fl.sources.get("ekf"),
                 ekf_velocity_rejections=fl.ekf_velocity_innovation_failures,
+                # samples dropped while reading, and what the reader found damaged
+                # (pymavlink's reports: counted here, not printed)
+                dropped_while_reading=", ".join(f"{k}={v}" for k, v in fl.dropped.items()),
             )
             row.update(
                 _rmse_row("rmse_full_in_flight", fl.rmse_vs_reference_in_flight_ned_mps.get("full"))

@@ -6,10 +6,13 @@ the dataset, summary table and static HTML report written for all logs.
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import io
 import json
 import math
+import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -148,27 +151,78 @@ def plot_png(
     return buf.getvalue()
 
 
-def write_outputs(results: list[dict[str, Any]], out: Path) -> None:
-    import csv
+class BatchWriteError(OSError):
+    """Some outputs of the batch could not be written (a full disk): the message names
+    each file and why; what was written is whole, nothing partial is left. ``rows``: the
+    summary rows of the logs (set by the batch, to print them)."""
 
+    rows: list[dict[str, Any]]
+
+
+def _write_whole(target: Path, write: Callable[[Path], object]) -> str | None:
+    """``write`` into a hidden file beside ``target``, renamed onto it when complete;
+    on failure the hidden file is removed and the reason returned."""
+    partial = target.with_name(f".{target.name}.partial")
+    try:
+        partial.unlink(missing_ok=True)  # a planted link there is removed, not followed
+        write(partial)
+        os.replace(partial, target)
+    except OSError as err:
+        partial.unlink(missing_ok=True)
+        return f"{target}: not written ({err.strerror or err})"
+    return None
+
+
+def _write_parquet(table: Any, path: Path) -> None:
     import pyarrow.parquet as pq  # type: ignore[import-untyped]  # no stubs
 
+    pq.write_table(table, path)
+
+
+def write_outputs(results: list[dict[str, Any]], out: Path) -> None:
+    """The Parquet dataset, the summary and the report; each file whole or absent
+    (written under a hidden name, renamed when complete). A file that cannot be written
+    (a full disk) does not stop the others, and a log whose Parquet file failed says so
+    in the summary (``records_not_written``): :class:`BatchWriteError` lists them all."""
+    import csv
+
+    failed: list[str | None] = []
     rec_dir = out / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)
     for r in results:
         if r["table"] is not None:
-            pq.write_table(r["table"], rec_dir / f"{r['row']['log_id']}.parquet")
+            table = r["table"]
+            problem = _write_whole(
+                rec_dir / f"{r['row']['log_id']}.parquet", functools.partial(_write_parquet, table)
+            )
+            if problem is not None:  # the summary says so for this log
+                r["row"]["records_not_written"] = problem
+            failed.append(problem)
     rows = [r["row"] for r in results]
     columns: list[str] = []
     for row in rows:
         columns += [k for k in row if k not in columns]
-    with (out / "summary.csv").open("w", newline="", encoding="utf-8") as f:
-        w = csv.DictWriter(f, fieldnames=columns, lineterminator="\n")
-        w.writeheader()
-        for row in rows:
-            w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
-    (out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8")
-    (out / "report.html").write_text(_html(results), encoding="utf-8")
+
+    def summary_csv(path: Path) -> None:
+        with path.open("w", newline="", encoding="utf-8") as f:
+            w = csv.DictWriter(f, fieldnames=columns, lineterminator="\n")
+            w.writeheader()
+            for row in rows:
+                w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
+
+    failed.append(_write_whole(out / "summary.csv", summary_csv))
+    failed.append(
+        _write_whole(
+            out / "summary.json",
+            lambda p: p.write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8"),
+        )
+    )
+    failed.append(
+        _write_whole(out / "report.html", lambda p: p.write_text(_html(results), encoding="utf-8"))
+    )
+    problems = [f for f in failed if f is not None]
+    if problems:
+        raise BatchWriteError("; ".join(problems))
 
 
 def _fmt(x: Any, nd: int = 3) -> str:

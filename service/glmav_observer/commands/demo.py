@@ -184,6 +184,7 @@ def run_demo(
             rerun_mode=rerun_mode,
             recording_name="glmav-observer demo",
             rerun_fallback_save_path=str(partial_rrd),
+            force=True,  # PATH.partial is the demo's own scratch name (a link is still refused)
         )
         zenoh_sink = next((s for s in sinks if isinstance(s, ZenohSink)), None) if zenoh else None
         if zenoh_sink is not None:

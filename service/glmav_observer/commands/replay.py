@@ -10,15 +10,20 @@ Deterministic (the vehicle's clock drives everything; two runs give byte-identic
 per configuration RMSE against SIM_STATE when the log has it, faults isolated,
 switches, samples dropped and frames rejected. ``--rrd PATH`` saves a Rerun recording.
 Exit codes: 0 done, 2 bad configuration, output path or log file (nothing in it could
-be read as MAVLink), 1 an output failed while writing (e.g. a full disk), 130/143 stopped
-by SIGINT/SIGTERM (the summary says where; the outputs end on whole records).
+be read as MAVLink; a damaged flight log, leaving no output), 1 an output failed while
+writing (e.g. a full disk), 130/143/129 stopped by SIGINT/SIGTERM/SIGHUP (the summary says
+where; the outputs end on whole records). ``--out`` and ``--rrd`` never write through a
+link or onto a device; an existing file is overwritten only with ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from glmav_observer.ingest.logfiles import FlightLog
 
 #: Logs smaller than this get no progress bar.
 PROGRESS_MIN_BYTES = 2_000_000
@@ -34,6 +39,8 @@ def register(sub: Any) -> None:
     p.add_argument("log", metavar="LOG", help=".tlog, ArduPilot .bin/.log or PX4 .ulg")
     p.add_argument("--out", default=None, metavar="PATH", help="write records to .csv or .jsonl")
     p.add_argument("--rrd", default=None, metavar="PATH", help="save a Rerun recording")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing --out/--rrd file (never a link or a device)")  # fmt: skip
     p.add_argument("--config", default=None, help="service.toml (default: built-in defaults)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
@@ -76,37 +83,40 @@ def main(args: argparse.Namespace) -> int:
     from glmav_observer.app_replay import replay_flight_log, replay_tlog
     from glmav_observer.app_sinks import open_sinks
     from glmav_observer.config import load_config
-    from glmav_observer.ingest.logfiles import LogError, detect_format
+    from glmav_observer.ingest.logfiles import LogError, detect_format, read_flight_log
     from glmav_observer.publish.file_sink import FileSinkError
+    from glmav_observer.publish.output_files import check_output_target
     from glmav_toml import ConfigError
 
     log = Path(args.log)
     if not log.is_file():
         print(f"glmav-observer replay: {log}: no such file", file=sys.stderr)
         return 2
+    flight_log: FlightLog | None = None
     try:
         config = load_config(args.config)
         fmt = detect_format(log)
+        if fmt != "tlog":  # read before any output is created: a damaged log leaves none
+            for path in (args.out, args.rrd):
+                if path:
+                    check_output_target(path, force=args.force)
+            flight_log = read_flight_log(log, args.velocity_source, gps_delay_s=args.gps_delay)
         sinks = open_sinks(
             config,
             out=args.out or "",
             zenoh_enabled=False,
             rerun_mode=f"save:{args.rrd}" if args.rrd else "off",
             recording_name=log.name,
+            force=args.force,
         )
     except (ConfigError, LogError, FileSinkError, OSError, ValueError) as err:
         print(f"glmav-observer replay: {err}", file=sys.stderr)
         return 2
     show = not args.no_progress and log.stat().st_size >= PROGRESS_MIN_BYTES
-    if fmt != "tlog":
+    if flight_log is not None:
         try:
             flight = replay_flight_log(
-                log,
-                config,
-                sinks,
-                velocity_source=args.velocity_source,
-                gps_delay_s=args.gps_delay,
-                progress=_Progress() if show else None,
+                flight_log, config, sinks, progress=_Progress() if show else None
             )
         except LogError as err:
             print(f"glmav-observer replay: {err}", file=sys.stderr)
@@ -120,7 +130,8 @@ def main(args: argparse.Namespace) -> int:
         stopped_by.append(signum)
         stop.set()
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    previous = {sig: signal.signal(sig, on_signal) for sig in signals}
     try:
         summary = replay_tlog(
             log, config, sinks, progress=_Progress() if show else None, stop_event=stop
@@ -135,6 +146,8 @@ def main(args: argparse.Namespace) -> int:
             f"({log.stat().st_size} bytes, 0 frames decoded{': ' + counts if counts else ''})",
             file=sys.stderr,
         )
+        if args.out:  # nothing was written: no empty output is left
+            Path(args.out).unlink(missing_ok=True)
         return 2
     print(summary.to_text())
     if stopped_by:

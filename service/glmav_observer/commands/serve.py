@@ -19,8 +19,13 @@ vehicles it claims on Zenoh, so that several services can share one fleet
 (in every payload, its liveliness token and its config key; a second service with the
 same id on one Zenoh network refuses to start); ``--mavlink-out CONN`` sends the active
 estimate back on MAVLink (``[mavlink_out]``, :mod:`glmav_observer.publish.mavlink_out`).
-Exit codes: 0 stopped cleanly, 2 bad configuration or link (a UDP port another process
-holds, a malformed string, a missing device), or a namesake already running.
+SIGINT, SIGTERM and SIGHUP (a closed terminal) stop it the same way: the summary, whole
+records, Zenoh closed. ``--out`` (one file, whatever the number of workers) and
+``--rerun save:PATH`` never write through a link or onto a device; an existing file is
+overwritten only with ``--force``. Exit codes: 0 stopped cleanly, 1 an output failed
+while running (e.g. a full disk: the summary says which), 2 bad configuration, output or
+link (a UDP port another process holds, a malformed string, a missing device), or a
+namesake already running.
 """
 
 from __future__ import annotations
@@ -64,6 +69,8 @@ def register(sub: Any) -> None:
     p.add_argument("--rerun", default=None, metavar="MODE",
                    help="off | spawn | save:PATH | connect:URL | serve (default: config, off)")  # fmt: skip
     p.add_argument("--out", default=None, metavar="PATH", help="also write records to .csv/.jsonl")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing --out/--rerun save: file (never a link or a device)")  # fmt: skip
     p.add_argument("--workers", type=_workers, default=None, metavar="N",
                    help="worker processes, vehicles sharded by system id (default: the "
                    "usable cores, or 1 when an output needs one process; 1 = one process)")  # fmt: skip
@@ -169,6 +176,7 @@ def main(args: argparse.Namespace) -> int:
             zenoh_config=args.zenoh,
             zenoh_enabled=True if args.zenoh is not None else None,
             rerun_mode=args.rerun,
+            force=args.force,
         )
     except (ConfigError, FileSinkError, OSError, ValueError) as err:
         print(f"glmav-observer serve: {err}", file=sys.stderr)
@@ -178,13 +186,15 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, LinkError) as err:
         for sink in sinks:
             sink.close()
+        _discard_empty_files(sinks)
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     if args.claim:
         return _main_claim(config, sinks, links)
     try:
         summary = serve(config, sinks, links)
-    except LinkError as err:
+    except LinkError as err:  # a link that would not open: nothing was served
+        _discard_empty_files(sinks)
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     print(summary.to_text())
@@ -192,6 +202,15 @@ def main(args: argparse.Namespace) -> int:
         print("glmav-observer serve: an output failed: see SINK FAILED above", file=sys.stderr)
         return 1
     return 0
+
+
+def _discard_empty_files(sinks: list[Sink]) -> None:
+    """Remove the ``--out`` file a start that failed created (no empty output is left)."""
+    from glmav_observer.publish.file_sink import FileSink
+
+    for sink in sinks:
+        if isinstance(sink, FileSink) and sink.rows == 0:
+            sink.path.unlink(missing_ok=True)
 
 
 def _zenoh_flags(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
@@ -264,15 +283,19 @@ def _main_sharded(
     args: argparse.Namespace, config: ServiceConfig, links: list[str], workers: int
 ) -> int:
     """``--workers N > 1``: the router here, the services in N worker processes."""
+    from pathlib import Path
+
     from glmav_observer.fleet.worker_process import WorkerError
     from glmav_observer.fleet.workers import serve_sharded, worker_specs
     from glmav_observer.ingest.links import LinkError
     from glmav_observer.publish.file_sink import FileSink, FileSinkError
 
+    out = args.out if args.out is not None else (config.out or None)
+    made = False
     try:
-        out = args.out if args.out is not None else (config.out or None)
-        if out:
-            FileSink(out).close()  # the final file: its name and folder are checked here
+        if out:  # the one file every worker appends to (with its CSV header), made here
+            FileSink(out, force=args.force).close()
+            made = True
         specs = worker_specs(
             config,
             workers,
@@ -281,10 +304,16 @@ def _main_sharded(
             zenoh_enabled=True if args.zenoh is not None else None,
             rerun_mode=args.rerun,
             claim=args.claim,
+            force=args.force,
         )
         result = serve_sharded(specs, links)
-    except (WorkerError, LinkError, FileSinkError, OSError) as err:
+    except (WorkerError, LinkError, FileSinkError, OSError, ValueError) as err:
+        if made and out:  # nothing was served: no empty output is left
+            Path(out).unlink(missing_ok=True)
         print(f"glmav-observer serve: {err}", file=sys.stderr)
         return 2
     print(result.to_text())
+    if result.summary.failed_sinks:
+        print("glmav-observer serve: an output failed: see SINK FAILED above", file=sys.stderr)
+        return 1
     return 0

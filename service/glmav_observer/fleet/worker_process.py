@@ -1,8 +1,8 @@
 """One worker process of ``serve --workers N`` (:mod:`glmav_observer.fleet.workers`): its
 own :class:`~glmav_observer.app.Service` and sinks (:class:`WorkerSpec`), fed by the
 parent's batches, sending back rate requests, a latency histogram and its summary
-(:class:`WorkerResult`). Workers ignore SIGINT/SIGTERM: the parent stops them by closing
-their pipe; a worker also reads its own socket of each UDP link the kernel routes
+(:class:`WorkerResult`). Workers ignore SIGINT/SIGTERM/SIGHUP: the parent stops them by
+closing their pipe; a worker also reads its own socket of each UDP link the kernel routes
 (:mod:`glmav_observer.fleet.reuseport`) and answers its vehicles on it.
 """
 
@@ -52,6 +52,8 @@ class WorkerSpec:
     #: how many workers share the fleet (the routing rule's n)
     workers: int = 1
     log_format: str = "text"
+    #: overwrite an existing Rerun save file (``--force``)
+    force: bool = False
 
 
 @dataclass
@@ -63,12 +65,6 @@ class WorkerResult:
     items: int
     cpu_s: float = 0.0  # the worker's CPU time (user + system), s
     wall_s: float = 0.0  # from ready to stop, s
-
-
-def part_path(out: str, index: int) -> str:
-    """``F.w<i>.<ext>``: worker ``index``'s part of the output ``F.<ext>``."""
-    p = Path(out)
-    return str(p.with_name(f"{p.stem}.w{index}{p.suffix}"))
 
 
 def worker_rerun_mode(mode: str | None, index: int) -> str | None:
@@ -100,6 +96,7 @@ def worker_main(
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # a closed terminal: the parent stops us
     configure_logging(spec.log_level, spec.log_format)
     direct = {lid: Link(lid, sock=s) for lid, s in (sockets or {}).items()}
     try:
@@ -281,7 +278,10 @@ def build_service(spec: WorkerSpec, admission: SharedAdmission | None = None) ->
     ``admission``: the service's ``max_vehicles``, shared by its workers."""
     sinks = open_sinks(
         spec.config,
-        out=None if spec.out is None else part_path(spec.out, spec.index),
+        # the one file of the service, made by the parent: every worker appends to it
+        out=spec.out,
+        out_shared=True,
+        force=spec.force,
         zenoh_config=spec.zenoh_config,
         zenoh_enabled=spec.zenoh_enabled,
         rerun_mode=worker_rerun_mode(spec.rerun_mode, spec.index),

@@ -34,14 +34,19 @@ Outputs, as seen by the user:
   answers for all vehicles together, ``@alive/<service-id>`` and ``@config/<service-id>``
   are declared by each worker (same key, same payload); only worker 0 checks that no
   other service holds the id, and the others build their sinks once it has (``go``);
-- ``--out F.jsonl|.csv``: each worker writes ``F.w<i>.<ext>``; at stop they are joined
-  into ``F`` (worker by worker, so each vehicle's rows stay in order) and removed;
+- ``--out F.jsonl|.csv``: one file, made by the parent (with the CSV header); every worker
+  appends its buffers of whole records to it (``O_APPEND``, each buffer under an
+  exclusive ``flock``, cut back to the file's size before it if the write fails:
+  :mod:`glmav_observer.publish.file_sink`), so ``F`` ends on a whole record at any
+  moment, a kill -9 of the parent leaves the records in ``F`` (the workers see their
+  pipe close and flush), and there are no part files; each vehicle's rows stay in order;
 - Rerun: ``save:PATH`` gives one file per worker (``PATH.w<i>.rrd``; open them together);
   ``connect:URL`` connects every worker to the viewer; ``spawn`` and ``serve`` (one
   viewer, one port) need ``--workers 1``.
 
-Workers ignore SIGINT/SIGTERM: the parent stops them by closing their pipe after the
-last batch, so nothing read is lost; a worker whose parent died sees the pipe close too.
+Workers ignore SIGINT/SIGTERM/SIGHUP: the parent stops them by closing their pipe after
+the last batch, so nothing read is lost; a worker whose parent died sees the pipe close
+too.
 
 This module is the parent's side; the frames are cut and their system ids read in
 :mod:`glmav_observer.fleet.routing`, and a worker's side is
@@ -56,7 +61,6 @@ import logging
 import math
 import multiprocessing
 import multiprocessing.connection
-import os
 import select
 import socket
 import threading
@@ -82,7 +86,6 @@ from glmav_observer.fleet.worker_process import (
     WorkerError,
     WorkerResult,
     WorkerSpec,
-    part_path,
     worker_main,
     worker_rerun_mode,
 )
@@ -132,26 +135,6 @@ class ShardedSummary:
             f"max {lat['max_ms']:.1f} ms over {int(lat['n'])} items"
         )
         return "\n".join(lines)
-
-
-def merge_parts(out: str, parts: Sequence[str]) -> int:
-    """Join the workers' parts into ``out`` (one CSV header) and remove them; rows written."""
-    rows = 0
-    csv = out.lower().endswith(".csv")
-    with open(out, "w", encoding="utf-8", newline="") as dst:
-        for i, part in enumerate(parts):
-            if not os.path.exists(part):
-                continue
-            with open(part, encoding="utf-8", newline="") as src:
-                for j, line in enumerate(src):
-                    if csv and j == 0:
-                        if i == 0 or rows == 0:
-                            dst.write(line)
-                        continue
-                    dst.write(line)
-                    rows += 1
-            os.remove(part)
-    return rows
 
 
 # ---------------------------------------------------------------------- parent side
@@ -399,8 +382,6 @@ class ShardedServer:
     def close(self, *, timeout_s: float = 60.0) -> ShardedSummary:
         """Stop the workers (they flush and close their sinks), merge parts and summaries."""
         self._stop_workers(timeout_s=timeout_s)
-        if self.out:
-            merge_parts(self.out, [part_path(self.out, w.index) for w in self.workers])
         results = [w.result for w in self.workers if w.result is not None]
         missing = [w.index for w in self.workers if w.result is None]
         if missing:
@@ -437,7 +418,9 @@ def merge_summaries(parts: Iterable[ServiceSummary], extra: Counter[str]) -> Ser
     links: dict[str, Counter[str]] = {}
     service: Counter[str] = Counter(extra)
     records = messages = 0
+    failed: list[tuple[str, str]] = []
     for s in parts:
+        failed.extend(s.failed_sinks)
         vehicles.update(s.vehicles)
         for lid, c in s.link_counters.items():
             links.setdefault(lid, Counter()).update(c)
@@ -450,6 +433,7 @@ def merge_summaries(parts: Iterable[ServiceSummary], extra: Counter[str]) -> Ser
         service_counters=dict(sorted(service.items())),
         records=records,
         messages=messages,
+        failed_sinks=failed,
     )
 
 
@@ -462,6 +446,7 @@ def worker_specs(
     zenoh_enabled: bool | None = None,
     rerun_mode: str | None = None,
     claim: bool = False,
+    force: bool = False,
 ) -> list[WorkerSpec]:
     """One spec per worker; raises WorkerError for a Rerun mode workers cannot share."""
     level = logging.getLevelName(logging.getLogger().getEffectiveLevel())
@@ -479,6 +464,7 @@ def worker_specs(
             claim=claim,
             log_level=level if isinstance(level, str) else "INFO",
             workers=workers,
+            force=force,
         )
         for i in range(workers)
     ]
@@ -489,7 +475,7 @@ def serve_sharded(
     links: Iterable[str],
     stop_event: threading.Event | None = None,
 ) -> ShardedSummary:
-    """Start the workers, open ``links``, route until SIGINT/SIGTERM (or the event)."""
+    """Start the workers, open ``links``, route until SIGINT/SIGTERM/SIGHUP (or the event)."""
     stop = stop_event if stop_event is not None else threading.Event()
     opened: dict[str, Link] = {}
     server: ShardedServer | None = None

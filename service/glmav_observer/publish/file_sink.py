@@ -13,12 +13,20 @@ Whole lines only: rows are buffered in memory (up to ``FLUSH_BYTES``) and writte
 When a write fails (a full disk, a file size limit, an I/O error) the file is cut back
 to that size, so it ends on a whole line, and :class:`FileSinkWriteError` says so; the
 service then isolates the sink and carries on with the others.
+
+The file is opened by :mod:`glmav_observer.publish.output_files` (never through a link;
+an existing file only with ``force``). ``shared=True``: the file already exists (made by
+``serve``'s parent, with the CSV header) and several workers append to it, each with
+``O_APPEND`` and each buffer written under an exclusive ``flock``; a failed write cuts
+the file back to its size before that buffer, so the one file ends on a whole record at
+any moment, whatever the number of writers.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import fcntl
 import io
 import json
 import math
@@ -26,6 +34,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from glmav_observer.publish.output_files import open_existing, open_output
 from glmav_observer.records import Record, flatten
 
 #: The CSV columns, fixed so that files do not depend on which records came first.
@@ -68,22 +77,28 @@ def _cell(x: Any) -> str:
 
 
 class FileSink:
-    """Writes records to ``path`` (``.csv`` or ``.jsonl``); ``close`` flushes and closes."""
+    """Writes records to ``path`` (``.csv`` or ``.jsonl``); ``close`` flushes and closes.
 
-    def __init__(self, path: str | Path) -> None:
+    ``force``: overwrite an existing regular file; ``shared``: append to the existing
+    file other writers append to (see the module doc)."""
+
+    def __init__(self, path: str | Path, *, force: bool = False, shared: bool = False) -> None:
         self.path = Path(path)
         suffix = self.path.suffix.lower()
         if suffix not in (".csv", ".jsonl"):
             raise FileSinkError(f"{self.path}: output must end in .csv or .jsonl")
         self._csv = suffix == ".csv"
-        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self.shared = shared
+        self._fd: int | None = (
+            open_existing(self.path, append=True) if shared else open_output(self.path, force=force)
+        )
         self._buf = io.StringIO(newline="")
         #: bytes on disk that end on a whole line; rows in them
         self.committed_bytes = 0
         self.committed_rows = 0
         self.rows = 0
         self._writer = csv.writer(self._buf, lineterminator="\n")
-        if self._csv:
+        if self._csv and not shared:
             self._writer.writerow(CSV_COLUMNS)
 
     def write(self, record: Record) -> None:
@@ -109,25 +124,44 @@ class FileSink:
         data = self._buf.getvalue().encode("utf-8")
         self._buf.seek(0)
         self._buf.truncate(0)
-        view = memoryview(data)
+        if not data:
+            return
+        fd = self._fd
+        if self.shared:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # the other writers wait: no buffer is cut
         try:
-            while view:
-                n = os.write(self._fd, view)
-                view = view[n:]
-        except OSError as err:
-            fd, self._fd = self._fd, None
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, self.committed_bytes)
-            with contextlib.suppress(OSError):
-                os.close(fd)
-            raise FileSinkWriteError(
-                err.errno,
-                f"{self.path}: write failed ({err.strerror}); the file ends at its last "
-                f"whole line ({self.committed_rows} rows, {self.committed_bytes} bytes); "
-                f"{self.rows - self.committed_rows} rows not written",
-            ) from None
+            start = os.fstat(fd).st_size if self.shared else self.committed_bytes
+            view = memoryview(data)
+            try:
+                while view:
+                    n = os.write(fd, view)
+                    view = view[n:]
+            except OSError as err:
+                self._fd = None
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, start)
+                raise self._write_error(err, start) from None
+        finally:
+            if self.shared:
+                with contextlib.suppress(OSError):
+                    fcntl.flock(fd, fcntl.LOCK_UN)
+            if self._fd is None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
         self.committed_bytes += len(data)
         self.committed_rows = self.rows
+
+    def _write_error(self, err: OSError, size: int) -> FileSinkWriteError:
+        lost = self.rows - self.committed_rows
+        if self.shared:
+            whole = f"({size} bytes; {self.committed_rows} rows from this writer)"
+        else:
+            whole = f"({self.committed_rows} rows, {size} bytes)"
+        return FileSinkWriteError(
+            err.errno,
+            f"{self.path}: write failed ({err.strerror}); the file ends at its last "
+            f"whole line {whole}; {lost} rows not written",
+        )
 
     def close(self) -> None:
         if self._fd is None:

@@ -36,9 +36,10 @@ def test_process_pool_and_dask_cluster_give_the_same_dataset(
         ["batch", str(batch_inputs), "--out", str(pool_out), "--velocity-source", "ekf",
          "--workers", "2"]
     )  # fmt: skip
-    assert code == 0
+    assert code == 1  # a log failed (issue 31, D9: it was 0); the others are written
     printed = capsys.readouterr()
     assert "3 logs, 1 not replayed" in printed.out
+    assert "glmav-observer batch: 1 of 3 logs not replayed" in printed.err
     assert "skipped 1 files in the folders given that are not logs" in printed.out
     assert "3/3 logs" in printed.err  # the progress bar reached the end
 
@@ -101,3 +102,67 @@ def test_batch_without_logs_or_with_a_missing_path_exits_2(
     missing = tmp_path / "nope.ulg"
     assert cli_main(["batch", str(missing), "--out", str(tmp_path / "o")]) == 2
     assert f"{missing}: no such file" in capsys.readouterr().err
+
+
+def _damaged_dataflash(src: Path, dst: Path) -> Path:
+    """200 bits flipped in the data (past the format messages): still read, but
+    pymavlink's indexer reports ~650 bad headers, one line each (measured for seed 1)."""
+    import random
+
+    data = bytearray(src.read_bytes())
+    rng = random.Random(1)
+    for _ in range(200):
+        data[rng.randrange(20_000, len(data))] ^= 1 << rng.randrange(8)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def test_batch_counts_pymavlink_reports_and_on_a_full_disk_exits_2_with_its_summary(
+    public_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    """Issue 31, D9: pymavlink printed thousands of lines for a damaged log; a full disk
+    (a 50 kB file-size limit: the summaries fit, the Parquet files do not) gave exit 2,
+    no summary and a stray Parquet file."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    _damaged_dataflash(public_logs["dataflash"], logs / "damaged.BIN")
+    (logs / "px4.ulg").write_bytes(public_logs["ulog"].read_bytes())
+    obs = str(Path(sys.executable).with_name("glmav-observer"))
+
+    def batch(out: Path, limit_bytes: int | None) -> subprocess.CompletedProcess[str]:
+        def limit() -> None:  # in the child, before exec
+            if limit_bytes is not None:
+                signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG, not a killed process
+                resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+        return subprocess.run(
+            [obs, "batch", str(logs), "--out", str(out), "--no-progress", "--workers", "1"],
+            check=False, capture_output=True, text=True, timeout=300, preexec_fn=limit,
+        )  # fmt: skip
+
+    ok = batch(tmp_path / "ok", None)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stderr == ""  # no pymavlink lines (there were ~650)
+    with (tmp_path / "ok" / "summary.csv").open() as f:
+        rows = {r["log_id"]: r for r in csv.DictReader(f)}
+    counted = dict(kv.split("=") for kv in rows["damaged.BIN"]["dropped_while_reading"].split(", "))
+    assert int(counted["dataflash_bad_headers"]) > 100
+
+    out = tmp_path / "full"
+    full = batch(out, 50_000)
+    assert full.returncode == 2, full.stderr
+    assert "Traceback" not in full.stderr
+    assert "2 logs, 0 not replayed; could not write everything" in full.stdout  # the summary
+    assert "  px4.ulg: PX4 " in full.stdout and "  damaged.BIN: ArduCopter" in full.stdout
+    assert f"{out / 'records' / 'px4.ulg.parquet'}: not written (" in full.stderr
+    assert "File too large" in full.stderr
+    # whole files only: the summaries (1-2 kB), no Parquet file, nothing partial
+    written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert written == ["summary.csv", "summary.json"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert all("records_not_written" in r for r in summary)

@@ -44,12 +44,23 @@ def test_a_full_disk_isolates_the_file_sink_and_the_others_go_on(
     tlog: Path, tmp_path: Path
 ) -> None:
     """The file is on a device that is always full (/dev/full: every write is ENOSPC).
-    It used to raise out of the pipeline (serve: rc 1, Zenoh and Rerun stopped)."""
+    It used to raise out of the pipeline (serve: rc 1, Zenoh and Rerun stopped). A link
+    to /dev/full is refused as an output since issue 31 (D6), so the sink's own file is
+    swapped for /dev/full under its descriptor (dup2): the write path is the real one."""
+    link = tmp_path / "link.jsonl"
+    link.symlink_to("/dev/full")
+    with pytest.raises(ValueError, match="is a symbolic link: refused"):
+        FileSink(link, force=True)
     full = tmp_path / "full.jsonl"
-    full.symlink_to("/dev/full")
+    sink = FileSink(full)
+    dev_full = os.open("/dev/full", os.O_WRONLY)
+    try:
+        os.dup2(dev_full, sink._fd)  # type: ignore[arg-type]  # open: not None
+    finally:
+        os.close(dev_full)
     memory = MemorySink()
     clean = MemorySink()
-    summary = replay_tlog(tlog, ServiceConfig(), [FileSink(full), memory])
+    summary = replay_tlog(tlog, ServiceConfig(), [sink, memory])
     replay_tlog(tlog, ServiceConfig(), [clean])
     assert [name for name, _ in summary.failed_sinks] == ["FileSink"]
     assert "No space left on device" in summary.failed_sinks[0][1]
@@ -93,7 +104,9 @@ def test_replay_on_a_full_disk_reports_failure_and_the_file_ends_on_a_whole_line
     assert f"({len(lines)} rows, {len(data)} bytes)" in proc.stdout
 
 
-def _replay_rrd(tlog: Path, rrd: Path, limit_bytes: int | None) -> subprocess.CompletedProcess[str]:
+def _replay_rrd(
+    tlog: Path, rrd: Path, limit_bytes: int | None, *extra: str
+) -> subprocess.CompletedProcess[str]:
     def limit() -> None:  # in the child, before exec
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of a killed process
         if limit_bytes is not None:
@@ -104,7 +117,7 @@ def _replay_rrd(tlog: Path, rrd: Path, limit_bytes: int | None) -> subprocess.Co
     # below. With the tick out of reach the chunks, and the size, follow the data alone.
     env = {**os.environ, "RERUN_FLUSH_TICK_SECS": "1000000"}
     return subprocess.run(
-        [*OBS, "replay", str(tlog), "--rrd", str(rrd), "--no-progress"],
+        [*OBS, "replay", str(tlog), "--rrd", str(rrd), "--no-progress", *extra],
         check=False,
         capture_output=True,
         text=True,
@@ -129,7 +142,8 @@ def test_replay_rrd_on_a_full_disk_reports_failure_and_leaves_no_file_that_looks
     # 1.28 MB measured for this 6 s flight; sizes vary by ~300 B between runs (Rerun's
     # batching of the text rows), hence a cut 2,000 B before the end
     for limit_bytes in (len(whole) // 3, len(whole) - 2_000):
-        proc = _replay_rrd(tlog, rrd, limit_bytes)
+        # --force: the earlier recording may be replaced (issue 31: not without it)
+        proc = _replay_rrd(tlog, rrd, limit_bytes, "--force")
         assert proc.returncode == 1, (limit_bytes, proc.stdout, proc.stderr)  # was 0
         assert f"SINK FAILED: RerunSink: {rrd}: the Rerun recording was not saved: " in (
             proc.stdout

@@ -50,6 +50,53 @@ def test_unreadable_files_name_the_file(
         assert e.value.reason.startswith(reason)
 
 
+@pytest.mark.parametrize(
+    ("content", "reason"),
+    [
+        (b"\xef\xbb\xbf[service]\n", "starts with a UTF-8 byte order mark (BOM)"),
+        # 100,000 levels: tomllib's recursion raised RecursionError (a traceback); 33: the
+        # limit is 32 (the project's files nest 3 deep)
+        (
+            b"x = " + b"[" * 100_000 + b"]" * 100_000 + b"\n",
+            "arrays or tables nested deeper than 32",
+        ),
+        (b"x = " + b"[" * 33 + b"]" * 33 + b"\n", "arrays or tables nested deeper than 32"),
+        (
+            b"x = " + b"{a = " * 33 + b"1" + b"}" * 33 + b"\n",
+            "arrays or tables nested deeper than 32",
+        ),
+        (b"# " + b"x" * 1_000_000 + b"\n", "1,000,003 bytes: larger than 1,000,000: refused"),
+    ],
+)
+def test_odd_files_are_refused_with_the_reason(tmp_path: Path, content: bytes, reason: str) -> None:
+    p = tmp_path / "x.toml"
+    p.write_bytes(content)
+    for load in (load_toml, load_config, load_sitl_config):
+        with pytest.raises(ConfigError, match=f"^{p}: -: ") as e:
+            load(p)
+        assert e.value.reason.startswith(reason), e.value.reason
+
+
+def test_32_levels_are_read(tmp_path: Path) -> None:
+    p = tmp_path / "x.toml"
+    p.write_text("x = " + "[" * 32 + "1" + "]" * 32 + "\n", encoding="utf-8")
+    depth, x = 0, load_toml(p)["x"]
+    while isinstance(x, list):
+        depth, x = depth + 1, x[0]
+    assert (depth, x) == (32, 1)
+
+
+def test_a_directory_is_refused_as_not_a_regular_file(tmp_path: Path) -> None:
+    """(/dev/zero and a FIFO, which blocked or filled the memory, are run as processes
+    with bounds in tests/integration/reliability/test_odd_inputs.py.)"""
+    d = tmp_path / "dir.toml"
+    d.mkdir()
+    for load in (load_toml, load_config, load_sitl_config):
+        with pytest.raises(ConfigError) as e:
+            load(d)
+        assert e.value.reason == "is a directory, not a regular file: refused"
+
+
 def test_reader_types_ranges_defaults_and_unknown_keys() -> None:
     r = TableReader("f.toml", {"n": 3, "x": 2, "flag": True, "v": [1, 2.5], "t": {"k": "b"}})
     assert r.get("n", int, REQUIRED, within(1, 10)) == 3

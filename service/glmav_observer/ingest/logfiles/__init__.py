@@ -141,15 +141,23 @@ def _delay_from_params(s: LogStreams) -> tuple[float, str] | None:
 def read_streams(path: str | Path, fmt: LogFormat | None = None) -> tuple[LogFormat, LogStreams]:
     """Detect and read a ULog or dataflash log."""
     fmt = fmt or detect_format(path)
-    if fmt == "ulog":
-        from glmav_observer.ingest.logfiles.ulog import read_ulog
+    if fmt not in ("ulog", "dataflash", "dataflash-text"):
+        raise LogError(
+            f"{path}: a {fmt} is replayed through MAVLink ingest, not read as a flight log"
+        )
+    try:
+        if fmt == "ulog":
+            from glmav_observer.ingest.logfiles.ulog import read_ulog
 
-        return fmt, read_ulog(path)
-    if fmt in ("dataflash", "dataflash-text"):
+            return fmt, read_ulog(path)
         from glmav_observer.ingest.logfiles.dataflash import read_dataflash
 
         return fmt, read_dataflash(path, text=fmt == "dataflash-text")
-    raise LogError(f"{path}: a {fmt} is replayed through MAVLink ingest, not read as a flight log")
+    except LogError:
+        raise
+    except Exception as err:  # the parsers raise whatever a damaged byte leads them to
+        what = "ULog" if fmt == "ulog" else "dataflash log"
+        raise LogError(f"{path}: damaged {what}: {type(err).__name__}: {err}") from err
 
 
 def missing_streams(s: LogStreams, velocity_source: str) -> str:

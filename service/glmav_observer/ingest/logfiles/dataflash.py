@@ -31,7 +31,13 @@ A log that lacks a stream the estimator needs is refused by :func:`read_flight_l
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
+import os
+import re
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -161,11 +167,57 @@ def vehicle_type(firmware: str, params: dict[str, float]) -> str:
 def read_dataflash(path: str | Path, *, text: bool = False) -> LogStreams:
     """The streams of an ArduPilot dataflash log (:class:`LogError` if it cannot be read)."""
     path = Path(path)
+    noise = io.StringIO()
+    try:
+        with _captured_output(noise):
+            s = _read(path, text)
+    except LogError as err:
+        reports = noise.getvalue().count("\n")
+        if not reports or "damaged" in str(err):
+            raise
+        raise LogError(f"{err} (damaged: pymavlink reported {reports} bad blocks)") from err
+    # what DFReader printed about a damaged log: counted here, not printed
+    printed = noise.getvalue()
+    s.drop("dataflash_messages_not_parsed", printed.count("Failed to parse "))
+    s.drop("dataflash_bad_headers", printed.count("bad header "))
+    s.drop(
+        "dataflash_bad_bytes_skipped",
+        sum(int(n) for n in re.findall(r"Skipped (\d+) bad bytes", printed)),
+    )
+    return s
+
+
+@contextlib.contextmanager
+def _captured_output(into: io.StringIO) -> Iterator[None]:
+    """What is printed on stdout and stderr inside, by Python or by C code (pymavlink's
+    indexer writes to the descriptors), goes to ``into`` (read as it is written: a
+    damaged log can make it print a line per bad block)."""
+    import tempfile
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            with contextlib.redirect_stdout(into), contextlib.redirect_stderr(into):
+                yield
+        finally:
+            for fd, old in ((1, saved[0]), (2, saved[1])):
+                os.dup2(old, fd)
+                os.close(old)
+            tmp.seek(0)
+            into.write(tmp.read().decode("utf-8", "replace"))
+
+
+def _read(path: Path, text: bool) -> LogStreams:
+    """:func:`read_dataflash`, its output captured by the caller."""
     try:
         reader = _open(path, text)
         declared = _declared(reader)
     except Exception as err:  # DFReader raises whatever its parser hits on a damaged header
-        raise LogError(f"{path}: not a readable dataflash log ({err})") from err
+        raise LogError(f"{path}: damaged dataflash log: {type(err).__name__}: {err}") from err
     usable = {n: c for n, c in declared.items() if set(_FIELDS.get(n, ("?",))) <= set(c)}
     times = {n: tc for n, c in usable.items() if (tc := _time_field(n, c)) is not None}
     timed = {n for n in times if n in ("ATT", "AHR2", "IMU", "GPS")}
@@ -227,7 +279,7 @@ def read_dataflash(path: str | Path, *, text: bool = False) -> LogStreams:
             else:  # SIM2 (VN, VE, VD), POS (Lat, Lng, Alt)
                 rows[name].append((t, v[1], v[2], v[3]))
     except Exception as err:  # a truncated or damaged message body
-        raise LogError(f"{path}: damaged dataflash log ({type(err).__name__}: {err})") from err
+        raise LogError(f"{path}: damaged dataflash log: {type(err).__name__}: {err}") from err
     if not (rows.get(att_name) or rows.get("IMU") or rows.get("GPS")):
         raise UnsupportedLogError(path, "ATT, AHR2, IMU or GPS messages: not a flight log")
     s = LogStreams(

@@ -21,6 +21,8 @@ Times: ``timestamp`` in µs of the autopilot's clock.
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 from typing import Any
 
@@ -84,9 +86,10 @@ def read_ulog(path: str | Path) -> LogStreams:
 
     path = Path(path)
     try:
-        ulog = ULog(str(path), message_name_filter_list=TOPICS)
+        with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints what it finds damaged
+            ulog = ULog(str(path), message_name_filter_list=TOPICS)
     except Exception as err:  # pyulog raises what its parser hits on a damaged file
-        raise LogError(f"{path}: not a readable ULog ({type(err).__name__}: {err})") from err
+        raise LogError(f"{path}: damaged ULog: {type(err).__name__}: {err}") from err
     params = {str(k): float(v) for k, v in ulog.initial_parameters.items()}
     s = LogStreams(
         format="ulog",

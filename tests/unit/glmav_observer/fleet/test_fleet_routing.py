@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import collections
-from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
@@ -12,8 +11,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.routing import StreamSplitter, sysid_of
-from glmav_observer.fleet.worker_process import WorkerError, part_path, worker_rerun_mode
-from glmav_observer.fleet.workers import merge_parts, merge_summaries
+from glmav_observer.fleet.worker_process import WorkerError, worker_rerun_mode
+from glmav_observer.fleet.workers import merge_summaries
 from glmav_observer.ingest.framing import FrameDecoder
 
 
@@ -63,20 +62,6 @@ def test_a_corrupt_length_does_not_swallow_the_next_frames() -> None:
     assert b"".join(p for s, p in pieces if s is None) == bytes(bad)
 
 
-def test_parts_are_joined_with_one_csv_header(tmp_path: Path) -> None:
-    out = str(tmp_path / "r.csv")
-    assert part_path(out, 1) == str(tmp_path / "r.w1.csv")
-    Path(part_path(out, 0)).write_text("h\n1\n2\n")
-    Path(part_path(out, 1)).write_text("h\n3\n")
-    assert merge_parts(out, [part_path(out, 0), part_path(out, 1)]) == 3
-    assert Path(out).read_text() == "h\n1\n2\n3\n"
-    assert not Path(part_path(out, 0)).exists()
-    js = str(tmp_path / "r.jsonl")
-    Path(part_path(js, 0)).write_text('{"a":1}\n')
-    Path(part_path(js, 1)).write_text('{"a":2}\n')
-    assert merge_parts(js, [part_path(js, 0), part_path(js, 1)]) == 2
-
-
 def test_rerun_modes_with_workers() -> None:
     assert worker_rerun_mode("save:/tmp/x.rrd", 2) == "save:/tmp/x.w2.rrd"
     assert worker_rerun_mode("connect:rerun+http://127.0.0.1:9876/proxy", 1).startswith("connect")
@@ -88,10 +73,14 @@ def test_rerun_modes_with_workers() -> None:
 def test_summaries_merge_disjoint_vehicles_and_add_counters() -> None:
     a = ServiceSummary({}, {"udp": {"frames_ok": 5}}, {"x": 1}, records=10, messages=5)
     b = ServiceSummary({}, {"udp": {"frames_ok": 7, "bad_crc": 1}}, {"x": 2}, 3, 8)
+    b.failed_sinks.append(("FileSink", "o.jsonl: write failed (No space left on device)"))
     m = merge_summaries([a, b], collections.Counter({"routed": 4}))
     assert m.link_counters == {"udp": {"bad_crc": 1, "frames_ok": 12}}
     assert m.service_counters == {"routed": 4, "x": 3}
     assert (m.records, m.messages) == (13, 13)
+    # a worker's failed output reaches the service's summary (serve then exits 1, as
+    # with one process; it used to be dropped here and serve said 0)
+    assert m.failed_sinks == b.failed_sinks
 
 
 def test_latency_histogram_quantiles_within_one_bin() -> None:

@@ -48,3 +48,25 @@ def test_jsonl_rows(tmp_path: Path) -> None:
 def test_bad_suffix() -> None:
     with pytest.raises(FileSinkError, match=r"\.csv or \.jsonl"):
         FileSink("out.txt")
+
+
+def test_shared_writers_append_whole_lines_to_one_file_with_one_header(tmp_path: Path) -> None:
+    """``serve --workers N``: the parent makes the file (CSV header), each worker appends
+    its buffers to it; no part files, every line whole, nobody's rows lost or repeated."""
+    p = tmp_path / "o.csv"
+    FileSink(p).close()  # the parent: the header only
+    a, b = FileSink(p, shared=True), FileSink(p, shared=True)
+    for i in range(300):
+        (a if i % 3 else b).write(VEL if i % 2 else HEALTH)
+        if i % 7 == 0:
+            a.flush()
+        if i % 11 == 0:
+            b.flush()
+    a.close()
+    b.close()
+    rows = list(csv.DictReader(p.open()))
+    assert len(rows) == 300 and [r["schema"] for r in rows].count("glmav.velocity/1") == 150
+    assert p.read_text().count("schema,sysid") == 1  # one header
+    assert [f.name for f in tmp_path.iterdir()] == ["o.csv"]
+    with pytest.raises(ValueError, match="cannot write: No such file"):
+        FileSink(tmp_path / "missing.csv", shared=True)  # shared: made by the parent
