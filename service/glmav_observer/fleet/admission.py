@@ -15,10 +15,29 @@ makes one.
 from __future__ import annotations
 
 import multiprocessing
+import signal
+import threading
+from multiprocessing import resource_tracker
 from typing import Any
 
 #: system ids 0-255, and the count of admitted ones at index 256
 _SLOTS = 256
+
+
+def start_resource_tracker_ignoring_sighup() -> None:
+    """Start multiprocessing's resource tracker (the process that owns the table's lock's
+    semaphore) with SIGHUP ignored. It ignores SIGINT and SIGTERM itself but not SIGHUP,
+    which a closed terminal sends to the whole process group: it died, and at the
+    service's clean stop a new tracker printed a KeyError traceback for the semaphore it
+    had never seen. An ignored signal stays ignored across the tracker's exec."""
+    if not hasattr(signal, "SIGHUP") or threading.current_thread() is not threading.main_thread():
+        resource_tracker.ensure_running()
+        return
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.signal(signal.SIGHUP, previous)
 
 
 class SharedAdmission:
@@ -28,6 +47,7 @@ class SharedAdmission:
     def __init__(self, max_vehicles: int, ctx: Any = None) -> None:
         ctx = ctx if ctx is not None else multiprocessing.get_context("spawn")
         self.max_vehicles = max_vehicles
+        start_resource_tracker_ignoring_sighup()
         self._table = ctx.Array("i", _SLOTS + 1, lock=True)
 
     def acquire(self, sysid: int) -> bool:

@@ -61,8 +61,9 @@ def _row_of(value: dict[str, Any]) -> dict[str, Any]:
     """The velocity payload as the file sink's flat row (records.flatten's names; the
     Zenoh-only ``service_id`` left out)."""
     row = {k: v for k, v in value.items() if not isinstance(v, list) and k != "service_id"}
-    for name, axes in (("v_body_mps", "uvw"), ("v_ned_mps", "ned")):
-        for axis, x in zip(axes, value[name], strict=True):
+    for name, axes in (("v_body_mps", "uvw"), ("v_ned_mps", "ned"), ("sigma_ned_mps", "ned")):
+        row.pop(name, None)  # (sigma_ned_mps: null when nothing is dead-reckoned)
+        for axis, x in zip(axes, value[name] or (None, None, None), strict=True):
             row[f"{name}_{axis}"] = x
     return row
 
