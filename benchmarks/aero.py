@@ -421,7 +421,7 @@ def sim_floor(scenario: str, profile: str | None) -> list[dict[str, Any]]:
     horizontal axis: the σ of an oracle filter with a perfect drag model, the true mean
     wind and gusts, the simulator's own IMU noise, bias random walk, turbulence and
     velocity rate and noise (read through its loaders), at +10 s and +HORIZON_S after a
-    hand-over from the healthy oracle. No estimator does better (docs/observer.md)."""
+    hand-over from the healthy oracle. No estimator does better (docs/design/observer-notes.md)."""
     from glmav_sitl.scenario import load_scenario
     from glmav_testkit.aero_floor import sitl_floor_model
 

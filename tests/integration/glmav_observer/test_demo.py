@@ -130,7 +130,7 @@ def test_demo_on_the_autopilot_sensor_profile(tmp_path: Path) -> None:
     assert row is not None, out
     # the input lags truth by 150 ms in a 3 m/s, 0.3 rad/s turn (0.9 m/s²): ~0.13 m/s of
     # its own if nothing compensated it; the FDI's fit learns the lag and the bank takes
-    # the measurement moved to the present (docs/observer.md): measured 0.067-0.089 m/s
+    # the measurement moved to the present (docs/design/observer-notes.md): measured 0.067-0.089 m/s
     # over 7 runs. Bound 0.15 m/s per axis: above the compensated figure with the
     # fault's 6 s of dead reckoning on e, about what an uncompensated lag alone costs.
     assert max(float(x) for x in row.groups()) <= 0.15, out
