@@ -52,7 +52,6 @@ from glmav_observer.estimation.aero.floor import (
     steady_state,
 )
 from glmav_observer.estimation.observer import G_MPS2, gamma_body_mps2
-from glmav_observer.evaluation import read_log_bytes
 from glmav_observer.frames import e_exact
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
@@ -65,6 +64,7 @@ from glmav_observer.ingest.samples import (
     VelocitySample,
 )
 from glmav_observer.records import NED_AXES
+from glmav_testkit.fault_replay import read_log_bytes
 
 FloatArray = NDArray[np.float64]
 

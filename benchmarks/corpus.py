@@ -1,11 +1,11 @@
 """The product on a real autopilot's telemetry: the ArduPilot SITL corpus, in full.
 
 Every log of ``tests/data/ardupilot_sitl`` replayed through the service with the default
-configuration (``glmav_observer.evaluation.replay``), scored against SIM_STATE; then every
+configuration (``glmav_testkit.fault_replay.replay``), scored against SIM_STATE; then every
 velocity fault kind (bias 0.5 and 1 m/s, freeze, NaN, noise σ 0.5 m/s) on every NED axis of
 the four flights without a velocity-relevant autopilot fault, 10 s long, at two onset
 times. The test suite runs 15 of these cases; this is the table. The 15 cases of one log and
-onset share the replay before the onset (``evaluation.replay_cases``, equal to separate
+onset share the replay before the onset (``fault_replay.replay_cases``, equal to separate
 replays bit for bit): 2 min 41 s on 2 cores, from about 5 min with one replay per case.
 
     python -m benchmarks.corpus [--quick]    # writes results/corpus.json, docs/benchmarks/corpus.md
@@ -47,7 +47,7 @@ def _r3(v: Any) -> list[float] | None:
 
 
 def _flight(name: str) -> dict[str, Any]:
-    from glmav_observer.evaluation import replay
+    from glmav_testkit.fault_replay import replay
 
     r = replay(DATA / f"{name}.tlog.xz")
     windows = [(a, b + 3.0) for a, b in _windows(name)]
@@ -67,7 +67,7 @@ def _flight(name: str) -> dict[str, Any]:
 def _cases_at(args: tuple[str, float]) -> list[dict[str, Any]]:
     """Every axis and kind at one onset of one log, replayed from a shared prefix
     (``replay_cases``: the same results as one ``replay`` per case)."""
-    from glmav_observer.evaluation import VelocityFault, replay_cases
+    from glmav_testkit.fault_replay import VelocityFault, replay_cases
 
     name, t_on = args
     faults = [

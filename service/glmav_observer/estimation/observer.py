@@ -30,15 +30,13 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glmav_observer.frames import G_MPS2 as G_MPS2  # noqa: PLC0414 -- re-exported: the estimator's g
 from glmav_observer.frames import ShapeError, e_exact, rotate, rotate_t
 from glmav_observer.frames import as_vectors as _array
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 EForm = Literal["exact", "small_angle"]
-
-#: Standard gravity used by the project (design.md, vehicle parameters), m/s².
-G_MPS2 = 9.81
 
 #: Below this |γ·Δt| the φ-functions use their Taylor series (no cancellation).
 _PHI_SERIES_BELOW = 0.1
