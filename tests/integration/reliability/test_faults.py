@@ -162,9 +162,10 @@ def test_reorder_window_restores_a_jittery_link() -> None:
     # the buffer spans what a 60 ms window can reach: only samples beyond it may be late
     beyond = link.beyond(window_s)
     assert r.vehicle.get("late", 0) <= beyond, (r.vehicle, beyond, max(link.disorder_s))
-    # and they are few: a stall must last longer than the window, and the 1 % bound keeps
-    # the run meaningful (at most ~30 of 3,000+ samples; 19 on the busy run that failed)
-    assert beyond <= link.samples // 100, (beyond, link.samples, max(link.disorder_s))
+    # and the window did the work: of the samples the link put behind a newer one, at most
+    # a tenth were out of its reach (idle: none of ~4,600; load 11 with 4 busy processes:
+    # 206, max disorder 92 ms), so most were restored
+    assert beyond <= link.behind // 10, (beyond, link.behind, max(link.disorder_s))
     # healthy-flight bound of the daemon's tests; this cruise measures 0.097-0.099 m/s north
     # (the same on main before this test changed: the flight's, not the link's) and 0.03 on
     # e/d; 1 % of samples lost changes nothing the estimate needs
