@@ -54,7 +54,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         "design.md) and Q comes from the white-noise density alone (4e-3 m/s²/√Hz), so its",
         "steady-state bandwidth is √(q²/(σ²/f)) = √(1.6e-5/(0.0025/30)) ≈ 0.44 s⁻¹ and a bias",
         "b leaves a lag of about b/0.44 s ≈ 0.45 m/s per 0.2 m/s². The bank's fixed γ (12 for",
-        "full, 90/70/70 for c1-c3) trades noise for bias (docs/observer.md), and the service",
+        "full, 90/70/70 for c1-c3) trades noise for bias (docs/design/observer-notes.md), and the service",
         "removes the FDI's estimate of the bias from f. A KF with bias states or an inflated",
         "Q would close much of the gap; the table compares against the filter on the same",
         "state (V_ned) and measurements as the bank, as specified. On the lost axis of c1-c3",
@@ -80,7 +80,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         "fault: the FDI compares a velocity step on one axis with an accelerometer step in",
         "body axes (ramps on every earth axis that rotate with the attitude) and reports the",
         "latter as an `accel_bias` event with its Δb, isolating no velocity axis",
-        "(docs/observer.md). Such an event after the onset counts as the right call in the",
+        "(docs/design/observer-notes.md). Such an event after the onset counts as the right call in the",
         "'isolated' column of the accelerometer rows; any velocity-axis isolation there, or",
         "an accelerometer event in another flight, counts as false.",
     ]

@@ -52,7 +52,6 @@ from glmav_observer.estimation.aero.floor import (
     steady_state,
 )
 from glmav_observer.estimation.observer import G_MPS2, gamma_body_mps2
-from glmav_observer.evaluation import read_log_bytes
 from glmav_observer.frames import e_exact
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
@@ -65,6 +64,7 @@ from glmav_observer.ingest.samples import (
     VelocitySample,
 )
 from glmav_observer.records import NED_AXES
+from glmav_testkit.fault_replay import read_log_bytes
 
 FloatArray = NDArray[np.float64]
 
@@ -421,7 +421,7 @@ def sim_floor(scenario: str, profile: str | None) -> list[dict[str, Any]]:
     horizontal axis: the σ of an oracle filter with a perfect drag model, the true mean
     wind and gusts, the simulator's own IMU noise, bias random walk, turbulence and
     velocity rate and noise (read through its loaders), at +10 s and +HORIZON_S after a
-    hand-over from the healthy oracle. No estimator does better (docs/observer.md)."""
+    hand-over from the healthy oracle. No estimator does better (docs/design/observer-notes.md)."""
     from glmav_sitl.scenario import load_scenario
     from glmav_testkit.aero_floor import sitl_floor_model
 

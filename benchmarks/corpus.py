@@ -1,17 +1,17 @@
 """The product on a real autopilot's telemetry: the ArduPilot SITL corpus, in full.
 
 Every log of ``tests/data/ardupilot_sitl`` replayed through the service with the default
-configuration (``glmav_observer.evaluation.replay``), scored against SIM_STATE; then every
+configuration (``glmav_testkit.fault_replay.replay``), scored against SIM_STATE; then every
 velocity fault kind (bias 0.5 and 1 m/s, freeze, NaN, noise σ 0.5 m/s) on every NED axis of
 the four flights without a velocity-relevant autopilot fault, 10 s long, at two onset
 times. The test suite runs 15 of these cases; this is the table. The 15 cases of one log and
-onset share the replay before the onset (``evaluation.replay_cases``, equal to separate
+onset share the replay before the onset (``fault_replay.replay_cases``, equal to separate
 replays bit for bit): 2 min 41 s on 2 cores, from about 5 min with one replay per case.
 
 The held-out flights (``tests/data/ardupilot_sitl_heldout``: other frames, winds, speeds,
 IMU rates and faults) are replayed the same way and printed next to the tuning flights,
 with the best-fit lag of the estimate and of the autopilot against truth. They are never
-tuned on (docs/observer.md, "The held-out set"); no goal below reads them.
+tuned on (docs/design/observer-notes.md, "The held-out set"); no goal below reads them.
 
     python -m benchmarks.corpus [--quick] [--flights-only]
     # writes results/corpus.json, docs/benchmarks/corpus.md
@@ -86,7 +86,7 @@ def _r3(v: Any) -> list[float] | None:
 
 def _flight_in(args: tuple[str, Path]) -> tuple[dict[str, Any], dict[str, Any]]:
     """One flight's row (the tuning table's) and its side-by-side row (with lags)."""
-    from glmav_observer.evaluation import replay
+    from glmav_testkit.fault_replay import replay
 
     name, data = args
     r = replay(data / f"{name}.tlog.xz")
@@ -124,7 +124,7 @@ def _flight_row(name: str, r: Any, windows: list[tuple[float, float]]) -> dict[s
 def _cases_at(args: tuple[str, float]) -> list[dict[str, Any]]:
     """Every axis and kind at one onset of one log, replayed from a shared prefix
     (``replay_cases``: the same results as one ``replay`` per case)."""
-    from glmav_observer.evaluation import VelocityFault, replay_cases
+    from glmav_testkit.fault_replay import VelocityFault, replay_cases
 
     name, t_on = args
     faults = [

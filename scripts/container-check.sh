@@ -399,16 +399,23 @@ print(json.dumps({"metrics": metrics, "failures": fails, "keys": sorted(got), "a
 sys.exit(1 if fails else 0)
 PY
 
-# The rates to expect, from the mounted configuration: the active estimate at the
-# simulator's best IMU stream rate over the sink's decimation, health at its own rate.
+# The rates to expect: the simulator's best IMU stream (its packaged sitl.toml, the one
+# copy since the configuration moved into the simulator's package; the image holds the same
+# file) capped by the service's Zenoh rate of each stream ([zenoh.rates], "every" = no cap)
+# over its decimation; health at the estimator's rate, capped the same way.
 read -r ACTIVE_HZ HEALTH_HZ < <(python3 -c '
 import sys, tomllib
-sitl = tomllib.load(open(sys.argv[1] + "/sitl.toml", "rb"))
+sitl = tomllib.load(open(sys.argv[2], "rb"))
 svc = tomllib.load(open(sys.argv[1] + "/service.toml", "rb"))
-dec = svc.get("zenoh", {}).get("decimation", {})
+zen = svc.get("zenoh", {})
+dec, rates = zen.get("decimation", {}), zen.get("rates", {})
+def cap(hz, stream):
+    r = rates.get(stream, "every")
+    return hz if r == "every" or zen.get("full_rate", False) else min(hz, float(r))
 imu = max(sitl["rates_hz"].get(m, 0.0) for m in ("highres_imu", "scaled_imu", "raw_imu"))
 health = svc.get("estimation", {}).get("health_rate_hz", 10.0)
-print(imu / dec.get("active", 1), health / dec.get("health", 1))' "$CFG")
+print(cap(imu, "active") / dec.get("active", 1), cap(health, "health") / dec.get("health", 1))' \
+    "$CFG" sim_bridge/glmav_sitl/data/sitl.toml)
 log "subscribing to glmav/** (window ${SETTLE_S}+${WINDOW_S}s of vehicle time; expecting active ${ACTIVE_HZ} Hz, health ${HEALTH_HZ} Hz)"
 if ! run_in_image --network host -v "$CFG:/etc/glmav-observer:ro" \
     -e SUB_ZENOH=/etc/glmav-observer/zenoh/client-router.json5 \

@@ -2,7 +2,9 @@
 
 Koehl, Rafaralahy, Boutayeb, Martinez, "Time-Varying Observers for Launched
 Unmanned Aerial Vehicle", 18th IFAC World Congress, 2011 (equation numbers in
-comments refer to that paper; see ``../shared/paper/equations.md``).
+comments refer to that paper; docs/model.md writes the model out).
 """
 
-__version__ = "0.1.0"
+from glmav_observer._version import __version__
+
+__all__ = ["__version__"]

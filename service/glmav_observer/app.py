@@ -307,22 +307,15 @@ class Service:
 
     def _publish(self, records: list[Record]) -> None:
         self.records += len(records)
-        # scored from a vehicle's first truth record on (a real vehicle has none: then
-        # this costs a lookup per record)
-        scorers = self._scorers
-        for r in records:
-            sc = scorers.get(r.sysid)
-            if sc is not None:
-                if type(r) is VelocityRecord:
-                    sc.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
-                elif type(r) is TruthRecord:
-                    sc.add_truth(r.t_boot_s, r.v_ned_mps)
-            elif type(r) is TruthRecord:
-                sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
-                sc.add_truth(r.t_boot_s, r.v_ned_mps)
-                est = self.estimators.get(r.sysid)
-                if est is not None:  # scored from now on: every estimate built
-                    est.out.set_reads(self._reads_for(r.sysid))
+        # a scorer is attached to a vehicle at its first truth record (a simulator's);
+        # until some vehicle sends truth (a real one never does) nothing is scored
+        if self._scorers:
+            self._score(records)
+        else:
+            for r in records:
+                if type(r) is TruthRecord:
+                    self._score(records)
+                    break
         gates = self._gates
         for sink in list(self.sinks):
             try:
@@ -339,6 +332,24 @@ class Service:
                 self._sink_failed(sink, err)
         if self._on_records is not None:
             self._on_records(records)
+
+    def _score(self, records: list[Record]) -> None:
+        """Score each vehicle's estimates against its truth, from its first truth record on
+        (attaching its :class:`TruthScorer` there; the summary reports them)."""
+        scorers = self._scorers
+        for r in records:
+            sc = scorers.get(r.sysid)
+            if sc is not None:
+                if type(r) is VelocityRecord:
+                    sc.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
+                elif type(r) is TruthRecord:
+                    sc.add_truth(r.t_boot_s, r.v_ned_mps)
+            elif type(r) is TruthRecord:
+                sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
+                sc.add_truth(r.t_boot_s, r.v_ned_mps)
+                est = self.estimators.get(r.sysid)
+                if est is not None:  # scored from now on: every estimate built
+                    est.out.set_reads(self._reads_for(r.sysid))
 
     def _sink_failed(self, sink: Sink, err: BaseException) -> None:
         """Isolate a sink whose write raised: log, count, close it, keep the others going.
@@ -580,7 +591,7 @@ class Service:
     def copy_state(self) -> Service:
         """A deep copy of this service: its ingest, estimators, counters and sinks (for
         replaying several variants of one log from a shared prefix,
-        :func:`glmav_observer.evaluation.replay_cases`). The copy shares the MAVLink
+        :func:`glmav_testkit.fault_replay.replay_cases`). The copy shares the MAVLink
         encoder, which holds no estimation state (it encodes the rate requests and
         their sequence numbers would then interleave): copy a service that replays, not
         one that sends."""

@@ -29,6 +29,7 @@ from glmav_observer.ingest.convert import RawImuScale
 from glmav_observer.ingest.links import DEFAULT_UDP_RECEIVE_BUFFER_BYTES
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_observer.ingest.rates import MESSAGE_IDS
+from glmav_observer.publish.mavlink_out_settings import GCS_COMPONENT_IDS, MavlinkOutSettings
 from glmav_observer.publish.schema import (
     DEFAULT_DECIMATION,
     DEFAULT_ENCODING,
@@ -97,28 +98,6 @@ class RerunSettings:
     mode: str = "off"
     decimation: int = 1
     serve_bind: str = "127.0.0.1"
-
-
-#: Component ids a ground station uses (MAVLink's MAV_COMP_ID_MISSIONPLANNER, QGroundControl):
-#: the service never claims them.
-GCS_COMPONENT_IDS = frozenset({190})
-
-
-@dataclass(frozen=True, slots=True)
-class MavlinkOutSettings:
-    """``[mavlink_out]``: the active estimate (and health) back on MAVLink (publish/mavlink_out.py)."""
-
-    enabled: bool = False
-    link: str = ""  # a pymavlink connection string, e.g. udpout:127.0.0.1:14551
-    system_id: int = 0  # 0: each vehicle's own system id (a component of that vehicle)
-    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
-    rate_hz: float = 30.0  # ODOMETRY / VISION_SPEED_ESTIMATE per vehicle, vehicle time
-    odometry: bool = True
-    vision_speed_estimate: bool = False
-    statustext: bool = True  # fault isolations and configuration switches
-    named_value_float: bool = True  # per-axis health and the active configuration
-    health_rate_hz: float = 1.0  # NAMED_VALUE_FLOAT per vehicle
-    sigma_measured_mps: float = 0.05  # velocity std of a measured axis in the covariance
 
 
 @dataclass(frozen=True, slots=True)

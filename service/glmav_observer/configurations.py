@@ -31,7 +31,7 @@ class Configuration:
     ``default_gamma_per_s``: its observer gain γ (1/s) unless the service configuration says
     otherwise. c1..c3: the paper's (49). full: the minimiser of the steady error²
     (b/γ)² + γ σ_y²/(2 f) with accelerometer bias b = 0.2 m/s², velocity noise σ_y = 0.05
-    m/s at f = 30 Hz (design.md): γ³ = 4 f b²/σ_y² → γ ≈ 12.4 (docs/observer.md).
+    m/s at f = 30 Hz (design.md): γ³ = 4 f b²/σ_y² → γ ≈ 12.4 (docs/design/observer-notes.md).
     """
 
     name: str

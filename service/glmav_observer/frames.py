@@ -33,6 +33,10 @@ from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 
+#: Standard gravity used by the project (design.md, vehicle parameters), m/s²: the g of
+#: V̇ = E f + g e_d, for the estimator and for whatever integrates the IMU the same way.
+G_MPS2 = 9.81
+
 
 class ShapeError(ValueError):
     """An input whose shape does not fit (wrong trailing dimensions or batch shape)."""

@@ -148,7 +148,7 @@ class FaultEvent:
 
 @dataclass(frozen=True, slots=True)
 class ReferenceFitSummary:
-    """What the FDI's reference fit has learnt of the vehicle's sensors (docs/observer.md,
+    """What the FDI's reference fit has learnt of the vehicle's sensors (docs/design/observer-notes.md,
     "The reference"): the body-frame (FRD) accelerometer bias, the attitude's heading error
     and the velocity measurement's lag. Each is the fit's mean; ``*_sigma`` its 1σ."""
 

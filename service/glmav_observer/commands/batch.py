@@ -27,6 +27,7 @@ files).
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterable
@@ -97,6 +98,17 @@ def _progress(done: int, total: int) -> None:
     print(f"\rbatch [{bar:<25}] {done}/{total} logs", end=end, file=sys.stderr, flush=True)
 
 
+def _log_to_file(path: str) -> None:
+    """A worker's log lines go to the batch's log file, not across the progress bar (a
+    pool worker starts with the parent's handler, on stderr)."""
+    root = logging.getLogger()
+    handler = logging.FileHandler(path, encoding="utf-8")
+    formatter = root.handlers[0].formatter if root.handlers else None
+    if formatter is not None:
+        handler.setFormatter(formatter)
+    root.handlers[:] = [handler]
+
+
 def run_batch(
     files: list[Path],
     out: Path,
@@ -126,7 +138,13 @@ def run_batch(
         import concurrent.futures as cf
 
         n = workers or os.cpu_count() or 1
-        with cf.ProcessPoolExecutor(max_workers=min(n, max(1, len(jobs)))) as pool:
+        log_path = out / "batch.log"
+        log_path.write_text("", encoding="utf-8")  # this batch's lines only
+        with cf.ProcessPoolExecutor(
+            max_workers=min(n, max(1, len(jobs))),
+            initializer=_log_to_file,
+            initargs=(str(log_path),),
+        ) as pool:
             pending = [pool.submit(process_log, *j) for j in jobs]
             for fut in cf.as_completed(pending):
                 results.append(fut.result())
@@ -194,8 +212,10 @@ def main(args: argparse.Namespace) -> int:
         return 2
     n_err = sum(1 for r in rows if r.get("error"))
     wrote = "could not write everything" if write_error else "wrote"
+    logs = ", batch.log" if not args.cluster else ""
     print(
-        f"{len(rows)} logs, {n_err} not replayed; {wrote} {out}/records/, summary.csv, report.html"
+        f"{len(rows)} logs, {n_err} not replayed; {wrote} {out}/records/, summary.csv, "
+        f"report.html{logs}"
     )
     if skipped:
         print(f"skipped {skipped} files in the folders given that are not logs")

@@ -90,6 +90,34 @@ def _rmse_row(prefix: str, r: tuple[float, float, float] | None) -> dict[str, fl
     return {f"{prefix}_{a}": (None if r is None else round(r[i], 4)) for i, a in enumerate("ned")}
 
 
+#: The report's rate columns for a tlog: the messages counted (``rx_<NAME>``) behind each;
+#: a tlog's LOCAL_POSITION_NED is the autopilot's EKF output, its GPS is GPS_RAW_INT.
+_TLOG_RATE_MESSAGES: dict[str, tuple[str, ...]] = {
+    "attitude": ("ATTITUDE",),
+    "imu": ("HIGHRES_IMU", "SCALED_IMU", "RAW_IMU"),
+    "gps": ("GPS_RAW_INT",),
+    "ekf": ("LOCAL_POSITION_NED",),
+    "truth": ("SIM_STATE",),
+}
+
+
+def _tlog_duration_and_rates(records: list[Any], vehicle: Any) -> dict[str, Any]:
+    """A tlog's duration (the span of the vehicle's record times, s) and its mean input
+    rates (the messages received over that span; the IMU: the busiest IMU message)."""
+    if vehicle is None:
+        return {"duration_s": None}
+    times = [r.t_boot_s for r in records if r.sysid == vehicle.sysid]
+    duration_s = max(times) - min(times) if times else 0.0
+    out: dict[str, Any] = {"duration_s": round(duration_s, 3) if times else None}
+    if duration_s > 0.0:
+        counters = vehicle.counters
+        for column, names in _TLOG_RATE_MESSAGES.items():
+            n = max(counters.get(f"rx_{name}", 0) for name in names)
+            if n:
+                out[f"rate_{column}_hz"] = round(n / duration_s, 2)
+    return out
+
+
 def process_log(
     path: str, log_id: str, config_path: str | None, velocity_source: str
 ) -> dict[str, Any]:
@@ -112,7 +140,7 @@ def process_log(
             s = replay_tlog(path, config, [sink])
             t_start = min((r.t_boot_s for r in sink.records), default=0.0)
             v = next(iter(s.vehicles.values()), None)
-            row.update(vehicle="MAVLink", duration_s=None)
+            row.update(vehicle="MAVLink", **_tlog_duration_and_rates(sink.records, v))
             rmse = v.rmse_ned_mps.get("active") if v is not None else None
             row.update(rmse_basis="truth" if rmse else None, **_rmse_row("rmse_active", rmse))
         else:

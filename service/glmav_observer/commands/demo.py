@@ -14,13 +14,16 @@ server, no manual step.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
+import os
 import socket
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -389,29 +392,74 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default=None,
         help="passed to glmav-sitl run --sensor-profile (default: the simulator's)",
     )
+    p.add_argument(
+        "--log",
+        default="demo.log",
+        help="where the service's and MAVSDK's log lines go during the flight (demo.log)",
+    )
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="show the log lines (the service's, MAVSDK's) on the terminal instead",
+    )
     p.set_defaults(func=main)
 
 
+@contextlib.contextmanager
+def _stderr_to(path: str | None) -> Iterator[None]:
+    """Send file descriptor 2 to ``path`` (this run's: truncated) for the block, then restore it.
+
+    MAVSDK's C++ core and our log handler both write to stderr while the flight runs; the
+    summary (stdout) should stand alone, as the README shows it. At the descriptor level,
+    so the C++ lines follow too. ``None``: leave stderr alone (``--verbose``)."""
+    if path is None:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError as err:
+        os.close(saved)
+        raise ValueError(f"--log {path}: {err.strerror}") from None
+    try:
+        os.dup2(fd, 2)
+        os.close(fd)
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def main(args: argparse.Namespace) -> int:
+    log_path = None if args.verbose else args.log
     try:
         config = load_config(args.config)
-        result = run_demo(
-            duration_s=args.duration,
-            fault_axis=args.fault_axis,
-            fault_kind=args.fault_kind,
-            fault_at_s=args.fault_at,
-            fault_length_s=args.fault_length,
-            speed=args.speed,
-            seed=args.seed,
-            rerun_mode=args.rerun,
-            rrd_path=args.rrd,
-            zenoh=not args.no_zenoh,
-            config=config,
-            sensor_profile=args.sensor_profile,
-        )
+        with _stderr_to(log_path):
+            result = _run(args, config)
     except (ConfigError, ValueError, RuntimeError) as err:
-        print(f"glmav-observer demo: {err}", file=sys.stderr)
+        where = f" (the log: {log_path})" if log_path is not None else ""
+        print(f"glmav-observer demo: {err}{where}", file=sys.stderr)
         return 2
     print(format_result(result))
     iso = result.first_isolation
     return 0 if iso is not None and not math.isnan(result.rows[-1][1]) else 1
+
+
+def _run(args: argparse.Namespace, config: ServiceConfig) -> DemoResult:
+    return run_demo(
+        duration_s=args.duration,
+        fault_axis=args.fault_axis,
+        fault_kind=args.fault_kind,
+        fault_at_s=args.fault_at,
+        fault_length_s=args.fault_length,
+        speed=args.speed,
+        seed=args.seed,
+        rerun_mode=args.rerun,
+        rrd_path=args.rrd,
+        zenoh=not args.no_zenoh,
+        config=config,
+        sensor_profile=args.sensor_profile,
+    )

@@ -17,7 +17,7 @@ acceleration the bank is fed (E (f − b̂_obs) + g e_d) with the lost component
 measured axes' components feed its check of the measured axes against their IMU
 prediction. Its rules keep it from being worse than dead reckoning (the model's own tests;
 measured axes that disagree with their IMU prediction; pseudo-measurements that disagree
-with the dead reckoning: docs/observer.md); when one fires it stops, δ goes back to 0 and
+with the dead reckoning: docs/design/observer-notes.md); when one fires it stops, δ goes back to 0 and
 the ``aided`` estimate *is* the bank's dead reckoning, the ``active`` one.
 
 With ``[estimation] aero_active`` (the default) the ``active`` estimate is the ``aided``

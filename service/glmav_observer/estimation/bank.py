@@ -1,7 +1,7 @@
 """The observer bank: the four configurations (full, c1, c2, c3) of one vehicle, or of many.
 
-(Over 500 lines: the one update written three ways that tests pin to each other, the
-plain-float loop, its unrolled healthy step and the batched numpy form across vehicles.)
+(The one update written two ways that tests pin to each other: the plain-float loop and
+the batched numpy form across vehicles.)
 
 :class:`ObserverBank` holds one vehicle's state and advances all configurations with the
 exact zero-order-hold update of (16) (:func:`~glmav_observer.estimation.observer.zoh_step`).
@@ -157,94 +157,6 @@ def _step_closed_form(  # noqa: PLR0917 -- the inputs of one step, in the API or
             ]
         )
     return out
-
-
-#: The table's lost axes in the order :func:`_step_standard` is written for; if the table
-#: ever changes order, the loop :func:`_step_closed_form` serves every step.
-_UNROLLED_LOST = (-1, 2, 0, 1)
-_UNROLLED_FITS_TABLE = _STANDARD_LOST == _UNROLLED_LOST
-
-
-def _step_standard(  # noqa: PLR0917 -- the inputs of one step, in the API order
-    xs: list[list[float]],
-    E: list[float],
-    we: list[float],
-    a: list[float],
-    y: Sequence[float],
-    terms: list[tuple[float, float, float]],
-    gammas: tuple[float, ...],
-    h: float,
-) -> list[list[float]]:
-    """:func:`_step_closed_form` for the table's four configurations with every measured
-    axis valid (``full``; c1, c2, c3 losing d, n, e: ``_UNROLLED_LOST``), unrolled: the
-    same expressions in the same order, so the same floats to the last bit
-    (tests/unit/glmav_observer/estimation/test_bank.py asserts equality). The common step
-    of a healthy vehicle; ``python -m benchmarks.bench_observer`` measures what it saves.
-    (Generated once by hand from the loop body; edit both together.)
-    """
-    e00, e01, e02, e10, e11, e12, e20, e21, e22 = E
-    w0, w1, w2 = we
-    a0, a1, a2 = a
-    y0, y1, y2 = y
-    (u0, u1, u2), (p0, p1, p2), (q0, q1, q2), (s0, s1, s2) = xs
-    (e_f, hp1_f, _), (e_1, hp1_1, h2p2_1), (e_2, hp1_2, h2p2_2), (e_3, hp1_3, h2p2_3) = terms
-    g_f, g_1, g_2, g_3 = gammas
-    zf0 = e00 * u0 + e01 * u1 + e02 * u2
-    zf1 = e10 * u0 + e11 * u1 + e12 * u2
-    zf2 = e20 * u0 + e21 * u1 + e22 * u2
-    # full (C = I): ż = a − ω_e × y + γ (y − z)
-    zf0 = e_f * zf0 + hp1_f * (a0 - (w1 * y2 - w2 * y1) + g_f * y0)
-    zf1 = e_f * zf1 + hp1_f * (a1 - (w2 * y0 - w0 * y2) + g_f * y1)
-    zf2 = e_f * zf2 + hp1_f * (a2 - (w0 * y1 - w1 * y0) + g_f * y2)
-    z10 = e00 * p0 + e01 * p1 + e02 * p2
-    z11 = e10 * p0 + e11 * p1 + e12 * p2
-    z12 = e20 * p0 + e21 * p1 + e22 * p2
-    # lost axis 2: ż_l = (a − ω_e × Ȳ)_l; measured 0, 1
-    c1 = a2 - (w0 * y1 - w1 * y0)
-    zl1 = z12
-    z12 = zl1 + h * c1
-    z10 = e_1 * z10 + hp1_1 * (a0 + w2 * y1 + g_1 * y0 - w1 * zl1) - h2p2_1 * w1 * c1
-    z11 = e_1 * z11 + hp1_1 * (a1 - w2 * y0 + g_1 * y1 + w0 * zl1) + h2p2_1 * w0 * c1
-    z20 = e00 * q0 + e01 * q1 + e02 * q2
-    z21 = e10 * q0 + e11 * q1 + e12 * q2
-    z22 = e20 * q0 + e21 * q1 + e22 * q2
-    # lost axis 0: ż_l = (a − ω_e × Ȳ)_l; measured 1, 2
-    c2 = a0 - (w1 * y2 - w2 * y1)
-    zl2 = z20
-    z20 = zl2 + h * c2
-    z21 = e_2 * z21 + hp1_2 * (a1 + w0 * y2 + g_2 * y1 - w2 * zl2) - h2p2_2 * w2 * c2
-    z22 = e_2 * z22 + hp1_2 * (a2 - w0 * y1 + g_2 * y2 + w1 * zl2) + h2p2_2 * w1 * c2
-    z30 = e00 * s0 + e01 * s1 + e02 * s2
-    z31 = e10 * s0 + e11 * s1 + e12 * s2
-    z32 = e20 * s0 + e21 * s1 + e22 * s2
-    # lost axis 1: ż_l = (a − ω_e × Ȳ)_l; measured 2, 0
-    c3 = a1 - (w2 * y0 - w0 * y2)
-    zl3 = z31
-    z31 = zl3 + h * c3
-    z32 = e_3 * z32 + hp1_3 * (a2 + w1 * y0 + g_3 * y2 - w0 * zl3) - h2p2_3 * w0 * c3
-    z30 = e_3 * z30 + hp1_3 * (a0 - w1 * y2 + g_3 * y0 + w2 * zl3) + h2p2_3 * w2 * c3
-    return [
-        [
-            e00 * zf0 + e10 * zf1 + e20 * zf2,
-            e01 * zf0 + e11 * zf1 + e21 * zf2,
-            e02 * zf0 + e12 * zf1 + e22 * zf2,
-        ],
-        [
-            e00 * z10 + e10 * z11 + e20 * z12,
-            e01 * z10 + e11 * z11 + e21 * z12,
-            e02 * z10 + e12 * z11 + e22 * z12,
-        ],
-        [
-            e00 * z20 + e10 * z21 + e20 * z22,
-            e01 * z20 + e11 * z21 + e21 * z22,
-            e02 * z20 + e12 * z21 + e22 * z22,
-        ],
-        [
-            e00 * z30 + e10 * z31 + e20 * z32,
-            e01 * z30 + e11 * z31 + e21 * z32,
-            e02 * z30 + e12 * z31 + e22 * z32,
-        ],
-    ]
 
 
 class ObserverBank:
@@ -465,11 +377,8 @@ class ObserverBank:
             if len(self._terms_by_h) >= TERMS_CACHE_SIZE:
                 self._terms_by_h.clear()  # step lengths that wander: start over
             self._terms_by_h[h] = terms
-        if masks is _STANDARD_MASKS and _UNROLLED_FITS_TABLE:
-            self._x = _step_standard(self._x, E, we, a, y, terms, self.gamma_gain, h)
-        else:
-            lost = [_lost_index(m) for m in masks]
-            self._x = _step_closed_form(self._x, E, we, a, y, lost, terms, self.gamma_gain, h)
+        lost = _STANDARD_LOST if masks is _STANDARD_MASKS else [_lost_index(m) for m in masks]
+        self._x = _step_closed_form(self._x, E, we, a, y, lost, terms, self.gamma_gain, h)
         self._E_last = E
 
     def _step_numpy(  # noqa: PLR0917 -- the inputs of one step, in the API order

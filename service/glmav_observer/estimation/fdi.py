@@ -2,7 +2,7 @@
 
 Pure computation (no I/O): the vehicle estimator feeds it the earth-frame integrals of the
 IMU and every velocity measurement; it returns, per axis, whether the sample may be used,
-the residual and its test ratio, and isolation/recovery events. Docs: docs/observer.md,
+the residual and its test ratio, and isolation/recovery events. Docs: docs/design/observer-notes.md,
 "Fault isolation".
 
 The parts, one module each: the settings and vocabulary

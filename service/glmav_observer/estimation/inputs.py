@@ -12,7 +12,7 @@ into
 
 Held measurement. A held y lags the truth by about its age times |V̇|; with
 ``propagate_held_measurement`` it is carried forward with the IMU instead,
-y(t) ≈ y(t_y) + (A(t) − A(t_y)) − (B(t) − B(t_y)) b̂ (docs/observer.md measures both).
+y(t) ≈ y(t_y) + (A(t) − A(t_y)) − (B(t) − B(t_y)) b̂ (docs/design/observer-notes.md measures both).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ observed, whatever the motion. Over an interval the same holds for the stacked
 C E(t_k) Φ(t_k, t_0) (Φ the transition of ẋ = A x), which equals C E(t_0) for all k.
 
 Q̇ is taken from the attitude history by second-order finite differences, so these
-functions test the kinematics of the history they are given (docs/observer.md).
+functions test the kinematics of the history they are given (docs/design/observer-notes.md).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ Conventions (everywhere in this module):
 Every function broadcasts over leading batch dimensions ``...``.
 
 The discrete-time update :func:`zoh_step` is the exact solution of (16) over one interval
-with all inputs held (zero-order hold); ``docs/observer.md`` derives it.
+with all inputs held (zero-order hold); ``docs/design/observer-notes.md`` derives it.
 """
 
 from __future__ import annotations
@@ -30,15 +30,13 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glmav_observer.frames import G_MPS2 as G_MPS2  # noqa: PLC0414 -- re-exported: the estimator's g
 from glmav_observer.frames import ShapeError, e_exact, rotate, rotate_t
 from glmav_observer.frames import as_vectors as _array
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 EForm = Literal["exact", "small_angle"]
-
-#: Standard gravity used by the project (design.md, vehicle parameters), m/s².
-G_MPS2 = 9.81
 
 #: Below this |γ·Δt| the φ-functions use their Taylor series (no cancellation).
 _PHI_SERIES_BELOW = 0.1
@@ -392,7 +390,7 @@ def zoh_earth(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     h: FloatArray,
     terms: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
-    """The exact-E update in frozen earth coordinates (docs/observer.md, "Discrete-time update").
+    """The exact-E update in frozen earth coordinates (docs/design/observer-notes.md, "Discrete-time update").
 
     ``z0 = E x̂``, ``we = ω_e = E ω``, ``a = E Γ``, ``ybar = Ȳ = D y`` (…, 3); ``mask`` the
     measured axes (D = diag(mask)); ``gam`` γ and ``h`` Δt broadcast to the batch. With

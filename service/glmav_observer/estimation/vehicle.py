@@ -132,7 +132,7 @@ class EstimatorConfig:
     aero_aiding: bool = True
     #: while the aiding runs, the ``active`` estimate's lost axis is the ``aided`` one
     #: (issue 13; its rules keep it from being worse than dead reckoning on the corpus:
-    #: docs/observer.md); False: ``active`` dead-reckons the lost axis, ``aided`` beside it
+    #: docs/design/observer-notes.md); False: ``active`` dead-reckons the lost axis, ``aided`` beside it
     aero_active: bool = True
     #: SERVO_OUTPUT_RAW's channel map for the cyclic regressors of the drag model
     #: (``[estimation.aero_control]``; None: SERVO_OUTPUT_RAW is ignored)

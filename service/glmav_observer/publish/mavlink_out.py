@@ -42,8 +42,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from glmav_observer.config import GCS_COMPONENT_IDS, MavlinkOutSettings
 from glmav_observer.ingest.links import Link
+from glmav_observer.publish.mavlink_out_settings import GCS_COMPONENT_IDS, MavlinkOutSettings
 from glmav_observer.reads import EVERY, Reads, next_due_s
 from glmav_observer.records import CONFIGS, HealthRecord, Record, VelocityRecord
 

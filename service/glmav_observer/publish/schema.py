@@ -100,9 +100,17 @@ def _object(properties: dict[str, Schema], *, required: list[str] | None = None)
 _SERVICE_ID: Schema = {"type": "string", "minLength": 1}
 
 
-def _record(properties: dict[str, Schema]) -> Schema:
-    """A record's schema: ``properties`` all required, plus the optional ``service_id``."""
-    return _object({**properties, "service_id": _SERVICE_ID}, required=list(properties))
+#: The publishing service's release (``glmav_observer.__version__``, semantic versioning):
+#: in Zenoh health samples and the ``@config`` reply; optional, so older payloads still check.
+_VERSION: Schema = {"type": "string", "minLength": 1}
+
+
+def _record(properties: dict[str, Schema], *, optional: dict[str, Schema] | None = None) -> Schema:
+    """A record's schema: ``properties`` all required, plus the optional ``service_id``
+    (and the ``optional`` ones)."""
+    return _object(
+        {**properties, "service_id": _SERVICE_ID, **(optional or {})}, required=list(properties)
+    )
 
 
 VELOCITY: Schema = _record(
@@ -183,7 +191,8 @@ HEALTH: Schema = _record(
                 }
             )
         ),
-    }
+    },
+    optional={"service_version": _VERSION},
 )
 
 MEASUREMENT: Schema = _record(
@@ -257,7 +266,9 @@ CONFIG: Schema = _object(
             }
         ),
         "config": {"type": "object"},
-    }
+        "version": _VERSION,
+    },
+    required=["schema", "service_id", "prefix", "zenoh_config", "decimation", "rates_hz", "config"],
 )
 
 SCHEMAS: dict[str, Schema] = {

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import orjson
 import ormsgpack
 
+from glmav_observer._version import __version__
 from glmav_observer.publish.schema import DEFAULT_ENCODING, ENCODINGS
 from glmav_observer.records import (
     HealthRecord,
@@ -172,10 +173,12 @@ def payload_encoder(encoding: str, service_id: str | None = None) -> Encoder:
     if encoding not in ENCODINGS:
         raise ValueError(f"unknown payload encoding {encoding!r} (one of {', '.join(ENCODINGS)})")
     extra: dict[str, str] = {} if service_id is None else {"service_id": service_id}
+    # a service's health sample (a few per second) also says which release publishes it
+    health_extra = extra if service_id is None else {**extra, "service_version": __version__}
 
     def slow_dict(record: Record) -> dict[str, Any]:
         d = record.to_dict()
-        d.update(extra)
+        d.update(health_extra if type(record) is HealthRecord else extra)
         return d
 
     if encoding == "msgpack":

@@ -35,6 +35,7 @@ import time
 from collections.abc import Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
+from glmav_observer._version import __version__
 from glmav_observer.configurations import AIDED
 from glmav_observer.publish.schema import (
     CONFIG_SCHEMA,
@@ -437,6 +438,7 @@ class ZenohSink:
             "decimation": dict(self.decimation),
             "rates_hz": self.reads.to_dict(),
             "config": json.loads(encode_json(self._effective_config)),
+            "version": __version__,
         }
 
     def _on_state_query(self, query: zenoh.Query) -> None:

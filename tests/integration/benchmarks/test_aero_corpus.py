@@ -20,7 +20,7 @@ from benchmarks.aero import (
     tlog_samples,
 )
 
-from glmav_observer.evaluation import read_log_bytes
+from glmav_testkit.fault_replay import read_log_bytes
 
 
 def _cases(name: str) -> list[dict[str, object]]:

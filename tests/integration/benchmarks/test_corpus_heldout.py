@@ -13,9 +13,9 @@ from types import SimpleNamespace
 import pytest
 from benchmarks.corpus import DATA, HELDOUT, best_fit_lag_s
 
-from glmav_observer.evaluation import RecordCollector, read_log_bytes
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.records import TruthRecord, VelocityRecord
+from glmav_testkit.fault_replay import RecordCollector, read_log_bytes
 
 FLIGHTS = sorted(p.name.split(".")[0] for p in HELDOUT.glob("*.tlog.xz"))
 

@@ -81,7 +81,7 @@ def test_lost_axis_keeps_its_initial_error_with_the_exact_e(
         e1 = lost_axis_error(exact, c, 1.0)
         d = measured_axis_decay(exact, c)
         # ε̇_l = (ω_e × Dε)_l, so |Δε_l| ≤ max|ω| ∫‖Dε‖dt = max|ω| e0_meas/γ, plus the drift
-        # of the 1 kHz attitude hold (docs/observer.md: ≤ ~1e-3 m/s per second here, ×5)
+        # of the 1 kHz attitude hold (docs/design/observer-notes.md: ≤ ~1e-3 m/s per second here, ×5)
         bound = w_max * d["e0_mps"] / PAPER_GAMMA[c] + 5e-3
         assert abs(e1 - e0) <= bound, (c, e0, e1, bound)
         assert abs(e0) > 1.0  # the paper's (48) leaves > 1 m/s on every lost axis...

@@ -20,13 +20,9 @@ import pytest
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
-from glmav_observer.evaluation import (
-    FaultInjector,
-    VelocityFault,
-    interpolate_truth,
-    read_log_bytes,
-)
+from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
+from glmav_testkit.fault_replay import FaultInjector, VelocityFault, read_log_bytes
 from glmav_testkit.sinks import AidedSink
 
 LOG = Path(__file__).parents[2] / "data" / "ardupilot_sitl" / "f_coax_clean.tlog.xz"

@@ -24,8 +24,9 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
 from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.vehicle import EstimatorConfig
-from glmav_observer.evaluation import FaultInjector, VelocityFault, interpolate_truth
+from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
+from glmav_testkit.fault_replay import FaultInjector, VelocityFault
 from glmav_testkit.sinks import AidedSink
 
 T_ON_S = 25.0

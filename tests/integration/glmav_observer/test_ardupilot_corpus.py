@@ -1,6 +1,6 @@
 """The product on a real autopilot's telemetry: the ArduPilot SITL corpus (tests/data).
 
-Every log is replayed through the service (``evaluation.replay``: the same ingest and
+Every log is replayed through the service (``glmav_testkit.fault_replay.replay``: the same ingest and
 estimator as ``serve``) with the default configuration, and scored against SIM_STATE.
 Bounds are the issue's (#12); where a bound is ours, the reason is next to it. The full
 table (every axis, every kind, several onset times) is ``python -m benchmarks.corpus``.
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from glmav_observer.evaluation import ImuShock, LogResult, VelocityFault, replay, replay_cases
+from glmav_testkit.fault_replay import ImuShock, LogResult, VelocityFault, replay, replay_cases
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
 #: Velocity-axis isolations (an ``accel_bias`` event isolates no axis).

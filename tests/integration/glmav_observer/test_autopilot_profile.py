@@ -7,7 +7,7 @@ and before the fit modelled the lag the service isolated a false bias on d at 3.
 dead-reckoned d 4.2 m/s RMS off for the rest of the flight. The FDI's reference fit now
 learns the lag (fdi module docstring) and the bank takes the measurement moved to the
 present by it (``compensate_lag``). Real parts: the simulator's own runner writes a
-tlog, the service replays it (evaluation.replay).
+tlog, the service replays it (glmav_testkit.fault_replay.replay).
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 
 from glmav_observer.config import ServiceConfig
-from glmav_observer.evaluation import LogResult, replay
 from glmav_sitl.runner import run
 from glmav_sitl.scenario import load_scenario, load_sitl_config
+from glmav_testkit.fault_replay import LogResult, replay
 
 #: the profile's lag (sim_bridge/glmav_sitl/data/sitl.toml [autopilot] velocity_lag_s)
 PROFILE_LAG_S = 0.15

@@ -21,10 +21,10 @@ import pytest
 from glmav_observer.app import Service
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
-from glmav_observer.evaluation import FaultInjector, VelocityFault
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
 from glmav_observer.reads import EVERY, READS_SCORING, Reads, next_due_s
 from glmav_observer.records import HealthRecord, Record, TruthRecord, VelocityRecord
+from glmav_testkit.fault_replay import FaultInjector, VelocityFault
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
 LIVE = Reads(

@@ -26,7 +26,7 @@ def test_active_estimate_rmse_against_sim_state(
     rmse = v.rmse_ned_mps["active"]
     assert rmse is not None and v.truth_samples > 500  # 17 s of SIM_STATE at 50 Hz
     # issue: <= 0.1 m/s per axis with default noise (analysis: ~0.02 for gamma_full = 12,
-    # sigma_y = 0.05 m/s at 30 Hz; docs/observer.md)
+    # sigma_y = 0.05 m/s at 30 Hz; docs/design/observer-notes.md)
     assert max(rmse) <= 0.1, rmse
     assert v.faults == []  # healthy sensors: no isolation
     assert v.active_config == "full"

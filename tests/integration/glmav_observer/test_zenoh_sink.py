@@ -18,11 +18,12 @@ import jsonschema
 import pytest
 import zenoh
 
+from glmav_observer import __version__
 from glmav_observer.publish.schema import SCHEMAS, validate
 from glmav_observer.publish.zenoh_config import ZenohConfigError
 from glmav_observer.publish.zenoh_keys import decode_payload, route
 from glmav_observer.publish.zenoh_sink import ZenohSink, open_zenoh_sink
-from glmav_observer.records import CONFIGS, Record, VelocityRecord
+from glmav_observer.records import CONFIGS, HealthRecord, Record, VelocityRecord
 from glmav_testkit.zenoh_helpers import (
     RouterProcess,
     client_config,
@@ -38,6 +39,13 @@ pytestmark = pytest.mark.timeout(60)
 DECIMATION = {"velocity": 2, "active": 1, "health": 1, "measurement": 3, "truth": 1}
 EFFECTIVE = {"link": ["udpin:127.0.0.1:14550"], "zenoh": {"prefix": "glmav"}, "gamma": [90, 70]}
 WARMUP_SYSID = 99
+
+
+def _published(record: Record, service_id: str) -> dict[str, Any]:
+    """A record as a service publishes it: its dict, the service's id, and on a health
+    sample the service's release."""
+    extra = {"service_version": __version__} if isinstance(record, HealthRecord) else {}
+    return {**record.to_dict(), "service_id": service_id, **extra}
 
 
 @pytest.fixture
@@ -138,7 +146,7 @@ def test_every_key_arrives_valid_and_equal_to_the_records(sink: ZenohSink, viewe
         by_key[key].append(value)
     want_by_key: dict[str, list[Any]] = defaultdict(list)
     for key, record in expected:
-        want_by_key[key].append({**record.to_dict(), "service_id": "test-svc"})
+        want_by_key[key].append(_published(record, "test-svc"))
     # per key, in order, the exact values the sink was given (JSON round-trips floats exactly)
     assert by_key == want_by_key
     assert sink.stats()["errors"] == 0
@@ -182,6 +190,7 @@ def test_state_and_config_queryables(sink: ZenohSink, viewer: Any) -> None:
     assert config["config"] == EFFECTIVE
     assert config["decimation"] == DECIMATION
     assert config["zenoh_config"].endswith("client.json5")
+    assert config["version"] == __version__  # the release a fleet operator can check
 
 
 def test_liveliness_tokens_follow_service_and_vehicles(
@@ -305,7 +314,7 @@ def test_msgpack_sink_publishes_the_same_objects_with_its_encoding(
         by_key[key].append(value)
     want: dict[str, list[Any]] = defaultdict(list)
     for record in records:  # per key in order (keys of other priorities may overtake)
-        want[route("glmav", record)[1]].append({**record.to_dict(), "service_id": "mp-svc"})
+        want[route("glmav", record)[1]].append(_published(record, "mp-svc"))
     assert by_key == want
 
 

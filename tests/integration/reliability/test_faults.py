@@ -16,7 +16,7 @@ import pytest
 from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.pipeline import IngestConfig
 from glmav_sitl.runner import run
-from glmav_testkit.faultproxy import FaultSpec, UdpFaultProxy
+from glmav_testkit.faultproxy import FaultSpec, UdpFaultProxy, VehicleTimeDisorder
 from glmav_testkit.faultrun import fly_through_proxy
 from glmav_testkit.rel_helpers import live_service, wait_until
 
@@ -134,20 +134,40 @@ def test_vehicle_reboot_restarts_its_estimator_without_mixing_samples(
     assert max(abs(r.v_ned_mps[0]) for r in first_tail) > 2.0  # cruising before the reboot
 
 
-@pytest.mark.timeout(60)
+@pytest.mark.timeout(90)
 def test_reorder_window_restores_a_jittery_link() -> None:
     """20 ms ± 10 ms of jitter reorders the 250 Hz IMU (4 ms apart) all the time: processed
     on arrival, most samples come behind their stream and are dropped as late (about 0.4
     m/s of error, docs/reliability.md). With ``[ingest] reorder_window_s`` = 0.06 s (2x the
-    jitter's spread plus margin) every sample is released in vehicle-time order."""
-    config = ServiceConfig(request_rates=False, ingest=IngestConfig(reorder_window_s=0.06))
+    jitter's spread plus margin) every sample the window can reach is released in
+    vehicle-time order.
+
+    Judged against what the link really did in this run (:class:`VehicleTimeDisorder` on
+    the proxy's output): on an idle machine a sample arrives at most the jitter (10 ms)
+    behind the newest, so nothing may be late; on a busy one the simulator stalls and
+    sends a burst, the jitter reorders the burst across the stall's span of vehicle time,
+    and the samples beyond 60 ms behind are ones no 60 ms window can restore. Only those
+    may be late (a busy-machine run of the README's command once had 19 here)."""
+    window_s = 0.06
+    config = ServiceConfig(request_rates=False, ingest=IngestConfig(reorder_window_s=window_s))
     spec = FaultSpec(delay_s=0.02, jitter_s=0.01, seed=1)
+    link = VehicleTimeDisorder()
     r = fly_through_proxy(
-        spec, scenario="cruise", duration_s=10.0, speed=1.0, seed=1, config=config
+        spec, scenario="cruise", duration_s=10.0, speed=1.0, seed=1, config=config, tap=link.feed
     )
     assert r.frames["frames_ok"] == r.proxy["forwarded"]
-    # the buffer spans the jitter (uniform ± 10 ms < 60 ms): nothing is late
-    assert r.vehicle.get("late", 0) == 0, r.vehicle
-    # healthy-flight bound of the daemon's tests; fault-free runs measure ~0.02-0.03 m/s
+    # the jitter did reorder the link: ~2.5 IMU samples per 10 ms of spread come behind
+    # a newer one (measured 30-50 % of the timed samples)
+    assert link.samples > 3000 and link.behind > link.samples // 10, (link.samples, link.behind)
+    # the buffer spans what a 60 ms window can reach: only samples beyond it may be late
+    beyond = link.beyond(window_s)
+    assert r.vehicle.get("late", 0) <= beyond, (r.vehicle, beyond, max(link.disorder_s))
+    # and the window did the work: of the samples the link put behind a newer one, at most
+    # a tenth were out of its reach (idle: none of ~4,600; load 11 with 4 busy processes:
+    # 206, max disorder 92 ms), so most were restored
+    assert beyond <= link.behind // 10, (beyond, link.behind, max(link.disorder_s))
+    # healthy-flight bound of the daemon's tests; this cruise measures 0.097-0.099 m/s north
+    # (the same on main before this test changed: the flight's, not the link's) and 0.03 on
+    # e/d; 1 % of samples lost changes nothing the estimate needs
     assert r.rmse_active_mps is not None and max(r.rmse_active_mps) <= 0.1, r.rmse_active_mps
     assert r.truth_samples > 200  # ~7 s of 50 Hz truth after the settling time

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import collections
 import heapq
+import math
 import random
 import select
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 
@@ -72,8 +74,11 @@ class UdpFaultProxy:
         target: tuple[str, int],
         spec: FaultSpec,
         listen: tuple[str, int] = ("127.0.0.1", 0),
+        tap: Callable[[bytes], None] | None = None,
     ) -> None:
         self.spec = spec
+        #: called with each datagram forwarded to ``target``, in the order sent (this thread)
+        self.tap = tap
         self.target = target
         self.rng = random.Random(spec.seed)
         self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -166,6 +171,9 @@ class UdpFaultProxy:
                     with self._lock:
                         self.counters["forwarded"] -= 1
                         self.counters["send_errors"] += 1
+                else:
+                    if self.tap is not None:
+                        self.tap(data)
             timeout = 0.05
             if self._queue:
                 timeout = max(0.0, min(timeout, self._queue[0][0] - now))
@@ -192,3 +200,49 @@ class UdpFaultProxy:
                                 self.counters["replies"] += 1
                         except OSError:
                             pass
+
+
+class VehicleTimeDisorder:
+    """What a link delivered, measured in vehicle time: feed it each forwarded datagram
+    (:attr:`UdpFaultProxy.tap`) and it decodes the timed samples (``time_boot_ms`` /
+    ``time_usec``) and keeps, per sample, how far behind the newest vehicle time seen so
+    far it arrived (its *disorder*).
+
+    A reorder window of W s can put back in order only samples whose disorder is at most W:
+    the ingest releases what is older than newest - W. On an idle machine the disorder of
+    a jittered link is the jitter (the sender paces in real time); on a busy one the
+    sender stalls and then sends a burst whose vehicle times span the stall, and the
+    jitter reorders the burst across that span. This measures the run's own figure, so
+    a test can judge the window against what its link really did.
+    """
+
+    def __init__(self) -> None:
+        from pymavlink.dialects.v20 import common as mavlink2
+
+        self._mav = mavlink2.MAVLink(None)
+        self._mav.robust_parsing = True
+        self._newest_s = -math.inf
+        self.samples = 0
+        self.behind = 0  # samples that arrived behind a newer one (the link reordered them)
+        self.disorder_s: list[float] = []
+
+    def feed(self, data: bytes) -> None:
+        for msg in self._mav.parse_buffer(data) or ():
+            t_ms = getattr(msg, "time_boot_ms", None)
+            t_us = getattr(msg, "time_usec", None)
+            if t_ms is not None:
+                t_s = t_ms * 1e-3
+            elif t_us is not None:
+                t_s = t_us * 1e-6
+            else:
+                continue
+            self.samples += 1
+            lag_s = self._newest_s - t_s
+            if lag_s > 0.0:
+                self.behind += 1
+                self.disorder_s.append(lag_s)
+            self._newest_s = max(self._newest_s, t_s)
+
+    def beyond(self, window_s: float) -> int:
+        """Samples no window of ``window_s`` could put back in order."""
+        return sum(1 for d in self.disorder_s if d > window_s)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -72,8 +73,10 @@ def fly_through_proxy(
     blackout: tuple[float, float] | None = None,
     config: ServiceConfig | None = None,
     settle_s: float = 2.0,
+    tap: Callable[[bytes], None] | None = None,
 ) -> FaultRun:
-    """Fly ``scenario`` through a proxy with ``spec``; ``blackout`` = (at sim s, for wall s)."""
+    """Fly ``scenario`` through a proxy with ``spec``; ``blackout`` = (at sim s, for wall s);
+    ``tap`` sees every datagram the proxy forwards to the service."""
     port = free_udp_port()
     conn = f"udpin:127.0.0.1:{port}"
     svc = Service(config or ServiceConfig(request_rates=False))
@@ -93,7 +96,7 @@ def fly_through_proxy(
     th.start()
     t0 = time.monotonic()
     try:
-        with UdpFaultProxy(("127.0.0.1", port), spec) as proxy:
+        with UdpFaultProxy(("127.0.0.1", port), spec, tap=tap) as proxy:
             fired = [False]
 
             def on_truth(truth: Any) -> None:
@@ -111,8 +114,10 @@ def fly_through_proxy(
                 truth_every_s=0.01,
             )
             sent = sum(summary.messages_sent.values())
-            # wait for the proxy's queue to drain and the service to take everything
-            deadline = time.monotonic() + settle_s + spec.delay_s + spec.jitter_s + 1.0
+            # wait for the proxy's queue to drain and the service to take everything: on a
+            # busy machine the proxy and the service may be seconds behind the simulator;
+            # the loop ends as soon as they are done, the deadline is only a bound
+            deadline = time.monotonic() + max(30.0, settle_s + spec.delay_s + spec.jitter_s + 1.0)
             dec = None
             while time.monotonic() < deadline:
                 dec = svc.decoders.get(conn)

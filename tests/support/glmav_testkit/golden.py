@@ -2,7 +2,7 @@
 (``tests/data/golden/``) so that a refactor of the estimator shows any change it makes.
 
 One case is one log replayed through the service with the default configuration (a
-MAVLink ``.tlog`` through :func:`glmav_observer.evaluation.replay_cases`, with velocity
+MAVLink ``.tlog`` through :func:`glmav_testkit.fault_replay.replay_cases`, with velocity
 faults injected for the fault cases; a ``.ulg`` or dataflash ``.BIN`` through
 :func:`glmav_observer.app_replay.replay_flight_log`). Its golden holds, for one vehicle
 (the lowest system id that produced estimates):
@@ -33,9 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from glmav_observer.evaluation import LogResult, RecordCollector, VelocityFault, replay_cases
 from glmav_observer.records import NED_AXES, Record, VelocityRecord
 from glmav_testkit import REPO_ROOT
+from glmav_testkit.fault_replay import LogResult, RecordCollector, VelocityFault, replay_cases
 
 DATA = REPO_ROOT / "tests" / "data"
 GOLDEN_DIR = DATA / "golden"
@@ -151,7 +151,7 @@ class GoldenCollector(RecordCollector):
             self.records.append(record)
 
     def first_sysid(self) -> int | None:
-        """The lowest system id with estimates (``evaluation.replay``'s vehicle)."""
+        """The lowest system id with estimates (``fault_replay.replay``'s vehicle)."""
         return min((r.sysid for r in self.records), default=None)
 
 

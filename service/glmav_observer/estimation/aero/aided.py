@@ -9,7 +9,7 @@ and the two measured axes. It carries the plain dead reckoning of the lost axis 
 (same propagation, never updated): every fall-back returns to it.
 
 Four rules here decide when the pseudo-measurement is not fused (their reasons in
-:class:`AidedAxisConfig`); rule 3 is the model's own, below (docs/observer.md numbers
+:class:`AidedAxisConfig`); rule 3 is the model's own, below (docs/design/observer-notes.md numbers
 them the same):
 
 1. **The measured axes must be consistent with the IMU** (the pseudo-measurement is
@@ -140,7 +140,7 @@ class AidedAxisConfig:
     #: rule 4: the mean normalised scatter above this and the model's σ is not to be
     #: believed (its pseudo-measurements scatter more than √2 σ about their own trend):
     #: the axis falls back to dead reckoning. (Measured on the corpus quad, whose model
-    #: is biased out of sample: 1.5-17 median per loss; docs/observer.md)
+    #: is biased out of sample: 1.5-17 median per loss; docs/design/observer-notes.md)
     scatter_max: float = 2.0
     #: rule 4: the trend extrapolates at least this long of its own data before its
     #: residual is judged, s (one white correlation time: a slope fitted to less is one

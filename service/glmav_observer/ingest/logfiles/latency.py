@@ -21,8 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from glmav_observer.estimation.observer import G_MPS2
-from glmav_observer.frames import e_exact
+from glmav_observer.frames import G_MPS2, e_exact
 from glmav_observer.ingest.logfiles.streams import F64, interp_euler
 
 MAX_DELAY_S = 0.5

@@ -73,10 +73,10 @@ def test_bank_equals_pure_function(e_form: str, mask_kind: str) -> None:
 
 
 def test_bank_standard_fast_path_equals_generic_path() -> None:
-    """The unrolled four-configuration code (bank._step_standard) == the loop
-    (bank._step_closed_form) to the last bit: the same expressions in the same order (an
-    all-True mask passed explicitly takes the loop). Over 200 chained steps any edit to one
-    of the two that the other lacks shows."""
+    """A healthy step (every axis measured: the table's masks, taken as they are) == the
+    same step with an all-True mask passed explicitly (masks built per step) to the last
+    bit: both run the one loop (bank._step_closed_form). Over 200 chained steps any path
+    that diverged would show."""
     rng = np.random.default_rng(5)
     a, b = ObserverBank(), ObserverBank()
     x0 = rng.normal(size=(4, 3))

@@ -383,7 +383,7 @@ def test_requirement_b_large_gamma_dt_stable_and_accurate(rate_hz: float) -> Non
     """γ = 90 for every configuration at 10 Hz (γΔt = 9) and 250 Hz (γΔt = 0.36), inputs
     sampled at that rate and held, over the 10 s scenario.
 
-    Bound (docs/observer.md): after the transient the measured-axis error is set by the hold,
+    Bound (docs/design/observer-notes.md): after the transient the measured-axis error is set by the hold,
     |e_m| ≲ Δt·(max|V̇| + max|ω|·max|V|): y is stale by up to V̇Δt and the held E is off by
     a rotation ωΔt, which turns V by |ω||V|Δt. The lost axis drifts by at most the summed
     hold error of the acceleration, ≲ T·Δt·(max|V̈| + max|ω|·max|V̇|)/2 + Δt·max|ω|·max|V|

@@ -12,6 +12,7 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from glmav_observer import __version__
 from glmav_observer.publish.schema import validate
 from glmav_observer.publish.zenoh_config import ZenohConfigError
 from glmav_observer.publish.zenoh_keys import (
@@ -112,6 +113,8 @@ def _expected(record: Record, service_id: str | None) -> dict[str, Any]:
     d = record.to_dict()
     if service_id is not None:
         d["service_id"] = service_id
+        if isinstance(record, HealthRecord):  # a service's health sample names its release
+            d["service_version"] = __version__
     value: dict[str, Any] = json.loads(encode_json(d))
     return value
 
