@@ -138,6 +138,7 @@ def run_batch(
         import concurrent.futures as cf
 
         n = workers or os.cpu_count() or 1
+        out.mkdir(parents=True, exist_ok=True)
         log_path = out / "batch.log"
         log_path.write_text("", encoding="utf-8")  # this batch's lines only
         with cf.ProcessPoolExecutor(

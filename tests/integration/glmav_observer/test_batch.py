@@ -161,8 +161,9 @@ def test_batch_counts_pymavlink_reports_and_on_a_full_disk_exits_2_with_its_summ
     assert "  px4.ulg: PX4 " in full.stdout and "  damaged.BIN: ArduCopter" in full.stdout
     assert f"{out / 'records' / 'px4.ulg.parquet'}: not written (" in full.stderr
     assert "File too large" in full.stderr
-    # whole files only: the summaries (1-2 kB), no Parquet file, nothing partial
+    # whole files only: the summaries (1-2 kB) and the workers' log, no Parquet file,
+    # nothing partial
     written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
-    assert written == ["summary.csv", "summary.json"]
+    assert written == ["batch.log", "summary.csv", "summary.json"]
     summary = json.loads((out / "summary.json").read_text())
     assert all("records_not_written" in r for r in summary)
