@@ -24,20 +24,10 @@ from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
 from glmav_observer.publish.rerun import TIMELINE, read_recording
 from glmav_observer.records import HealthRecord, Record, TruthRecord, VelocityRecord
+from glmav_testkit.sinks import MemorySink
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
 BIN = Path(sys.executable).parent
-
-
-class _Collect:
-    def __init__(self) -> None:
-        self.records: list[Record] = []
-
-    def write(self, record: Record) -> None:
-        self.records.append(record)
-
-    def close(self) -> None:
-        pass
 
 
 def _messages(name: str) -> list[tuple[Any, float]]:
@@ -46,7 +36,7 @@ def _messages(name: str) -> list[tuple[Any, float]]:
 
 
 def _replay(messages: list[tuple[Any, float]]) -> list[Record]:
-    sink = _Collect()
+    sink = MemorySink()
     service = Service(ServiceConfig(request_rates=False), [sink])
     for msg, t in messages:
         service.feed_message(msg, t, "log")
