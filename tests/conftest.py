@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import random
 import socket
 import tempfile
 from collections.abc import Callable, Iterator
@@ -49,11 +50,36 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
+def _ephemeral_low() -> int:
+    """The first port the kernel hands out for bind(0) and connect (32768 by default)."""
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
+_PORT_RNG = random.Random()
+
+
 def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
+    """A port that is free now, chosen at random **below the ephemeral range**: a port the
+    kernel picked for bind(0) is handed to the next process that binds or connects without
+    a port (a Zenoh session, a client socket), and on a busy machine one took a test's
+    service port between this check and the service's bind (exit 2, "already taken")."""
+    high = _ephemeral_low()
+    low = max(10_000, high - 12_000)
+    for _ in range(200):
+        port = _PORT_RNG.randrange(low, high)
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    with socket.socket(socket.AF_INET, kind) as s:  # (a crowded range: the kernel's pick)
         s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
+        chosen: int = s.getsockname()[1]
+        return chosen
 
 
 @pytest.fixture

@@ -70,7 +70,9 @@ def _wait_bound(proc: subprocess.Popen[str], port: int) -> None:
             return  # the port is taken: serve has bound it
         finally:
             probe.close()
-        assert time.monotonic() < deadline and proc.poll() is None, proc.stderr
+        if proc.poll() is not None:  # exited before binding: say why
+            raise AssertionError(proc.stderr.read() if proc.stderr is not None else "")
+        assert time.monotonic() < deadline
         time.sleep(0.05)
 
 
