@@ -60,7 +60,7 @@ from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
-from glmav_observer.estimation.drift import DriftAxes, drift_sigma_ned_mps
+from glmav_observer.estimation.drift import OVERDUE_INTERVALS, DriftAxes, drift_sigma_ned_mps
 from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
@@ -104,6 +104,7 @@ RESOLVE_S = 1.0
 ACCEL_EVENT_HOLD_S = 5.0
 
 Vec3 = tuple[float, float, float]
+_NONE3: list[float | None] = [None, None, None]
 #: Per configuration (CONFIGS order): whether it has a lost (dead-reckoned) axis.
 _HAS_LOST_AXIS: tuple[bool, ...] = tuple(LOST_AXIS_OF_CONFIG[c] is not None for c in CONFIGS)
 
@@ -765,8 +766,15 @@ class VehicleEstimator:
         """Per NED axis, the σ of an axis every configuration dead-reckons now (None:
         measured), or None when there is none: the isolated axes beyond the active
         configuration's lost one (σ since their isolation), the unaided axes and a silent
-        measurement stream (:mod:`.drift`)."""
+        measurement stream (:mod:`.drift`). A healthy vehicle (nothing unaided or isolated,
+        the stream on time) returns at the first test: this runs at every record built."""
         streams = self.streams
+        if (
+            self.drift.unaided_since_s == _NONE3
+            and not self.fdi.faulty_axes()
+            and t - streams.t_y_s <= OVERDUE_INTERVALS * streams.y_interval_s
+        ):
+            return None
         sig = drift_sigma_ned_mps(
             self.cfg.fdi, t, self.drift.unaided_since_s, streams.t_y_s or None,
             streams.y_interval_s,
