@@ -22,7 +22,9 @@ from typing import Any, get_args
 from glmav_observer.configurations import DEFAULT_GAMMA
 from glmav_observer.estimation import EForm
 from glmav_observer.estimation.aero.control import ControlMapping
+from glmav_observer.estimation.despike import DespikeConfig
 from glmav_observer.estimation.fdi_types import FdiConfig
+from glmav_observer.estimation.imu_monitor import ImuMonitorConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig
 from glmav_observer.ingest.convert import RawImuScale
@@ -234,6 +236,20 @@ _BOUNDS: dict[str, Check] = {
     "correlation_samples": within(1.0, 1000.0),
     "max_bias_mps2": within(0.0, 100.0, lo_open=True),
     "change_window_s": within(0.0, 600.0, lo_open=True),
+    # a measurement later than 1 mean interval is not yet overdue: the bound keeps a
+    # steady stream's jitter from flagging every record
+    "overdue_intervals": within(1.0, 1000.0),
+    # [fdi.imu] (estimation/imu_monitor.py)
+    "window_s": within(0.0, 60.0, lo_open=True),
+    "floor_mps2": within(0.0, 10_000.0, lo_open=True),  # (also [fdi.despike])
+    "k_sigma": within(0.0, 100.0, lo_open=True),  # (also [fdi.despike])
+    "baseline_tau_s": within(0.0, 86_400.0, lo_open=True),
+    "resolve_timeout_s": within(0.0, 600.0),
+    "min_samples": within(2, 100_000),
+    "min_fill": within(0.0, 1.0, lo_open=True),
+    "end_fraction": within(0.0, 1.0, lo_open=True),
+    # [fdi.despike] (estimation/despike.py)
+    "tau_samples": within(1, 1_000_000),
 }
 
 
@@ -384,7 +400,13 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     est.done()
     # [fdi]
     fdi_r = root.sub("fdi")
-    fdi = FdiConfig(**_fields_from(fdi_r, FdiConfig()))
+    imu_r = fdi_r.sub("imu")
+    imu_cfg = ImuMonitorConfig(**_fields_from(imu_r, ImuMonitorConfig()))
+    imu_r.done()
+    spike_r = fdi_r.sub("despike")
+    spike_cfg = DespikeConfig(**_fields_from(spike_r, DespikeConfig()))
+    spike_r.done()
+    fdi = FdiConfig(**_fields_from(fdi_r, FdiConfig()), imu=imu_cfg, despike=spike_cfg)
     if fdi.warmup_s < 1.0:
         raise ConfigError(file, "fdi.warmup_s", "must be >= 1.0 (the bias fit needs 1 s)")
     fdi_r.done()

@@ -18,8 +18,9 @@ measurement itself looks healthy:
 - **The measurement stream is silent** (a link that drops one message type, an autopilot
   that stops sending it). Every axis is dead-reckoned from the last measurement on, and
   flagged from the first missed period: 1.5 mean intervals after the last sample
-  (``OVERDUE_INTERVALS``: a sample later than half an interval is already unusual on a
-  steady stream, and a lone late one costs a record or two of a σ that is still σ0).
+  (``FdiConfig.overdue_intervals``: a sample later than half an interval is already
+  unusual on a steady stream, and a lone late one costs a record or two of a σ that is
+  still σ0).
 
 σ of a flagged axis is the dead reckoning's (``fdi_reference.sigma_dead_reckoning_mps``)
 since the flag's start: for a GPS loss the autopilot's estimate drifts like ours would.
@@ -33,10 +34,6 @@ from dataclasses import dataclass, field
 
 from glmav_observer.estimation.fdi_reference import sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
-
-#: A measurement is overdue (its axes flagged dead-reckoned) this many mean intervals
-#: after the last one (module docstring).
-OVERDUE_INTERVALS = 1.5
 
 
 @dataclass
@@ -103,7 +100,7 @@ def drift_sigma_ned_mps(  # noqa: PLR0917 -- the state of the three axes, in ord
     if (
         t_last_measurement_s is not None
         and measurement_interval_s > 0.0
-        and t_s - t_last_measurement_s > OVERDUE_INTERVALS * measurement_interval_s
+        and t_s - t_last_measurement_s > cfg.overdue_intervals * measurement_interval_s
     ):
         anchor = [t_last_measurement_s if a is None else min(a, t_last_measurement_s)
                   for a in anchor]  # fmt: skip

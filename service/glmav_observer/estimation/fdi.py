@@ -41,7 +41,7 @@ class FaultDetector:
     axes: tuple[AxisMonitor, AxisMonitor, AxisMonitor] = field(init=False)
     accel_changes: list[AccelChange] = field(default_factory=list)
     reference_drifts: int = 0
-    #: residual isolations withdrawn on a ramping residual (RAMP_LIMIT_MPS2)
+    #: residual isolations withdrawn on a ramping residual (``ramp_limit_mps2``)
     ramp_withdrawals: int = 0
     #: the vehicle's redundant IMUs are compared (``imu_monitor``): they tell an
     #: accelerometer fault themselves, so a common ramp of the residuals is the reference's

@@ -23,6 +23,11 @@ Tests (thresholds in :class:`FdiConfig`):
 Hysteresis: bias and noise must fail ``k_isolate`` samples in a row; a sample beyond
 ``gate_sigma`` · s_j is kept out of ``full`` meanwhile. Recovery: the axis must pass every
 test against the frozen dead reckoning for ``recovery_s``.
+
+A residual isolation is withdrawn when the residual against the dead reckoning ramps
+faster than ``ramp_limit_mps2`` (beyond 3σ of the slope) over the last ``ramp_window_s``
+(:meth:`AxisMonitor.ramping`). The inner constants are :class:`FdiTuning`'s
+(``cfg.tuning``), each with its reason.
 """
 
 from __future__ import annotations
@@ -61,17 +66,8 @@ WARMUP, OK, SUSPECT, FAULTY, RECOVERING = (
     AxisState.RECOVERING,
 )
 
-#: Vetted samples of a recovered axis before its prediction comes from the live fit again.
-REARM_ROWS = 20
 #: Median of the χ² distribution with one degree of freedom.
 CHI2_1_MEDIAN = 0.45494
-#: A residual isolation is withdrawn when the residual against the dead reckoning ramps
-#: faster than this (m/s², beyond 3σ of the slope) over the last RAMP_WINDOW_S: a velocity
-#: sensor's fault is an offset or noise around the truth; a ramp is the IMU's path (an
-#: attitude estimator lost in a ballistic climb) drifting, more than any accelerometer
-#: bias the fit leaves (prior 0.3 m/s²).
-RAMP_LIMIT_MPS2 = 0.5
-RAMP_WINDOW_S = 1.0
 
 
 @dataclass
@@ -98,7 +94,7 @@ class AxisMonitor:
     _t_last_vetted_s: float | None = None
     _frozen: Reference | None = None
     _fault_level_mps: float = 0.0  # signed median residual when a bias was isolated
-    _iso_resid: deque[float] = field(default_factory=lambda: deque(maxlen=24))
+    _iso_resid: deque[float] = field(init=False)
     _stepped_back_level: float | None = None
     _rearm_rows: int = 0
     _scale: float = 0.0  # s_j of the last test
@@ -110,18 +106,27 @@ class AxisMonitor:
     #: squares and the running mean of those squares while the axis is healthy (white noise
     #: σ gives 6σ²; smooth motion adds only jerk·Δt²)
     _y_prev: tuple[float, float] = (math.nan, math.nan)
-    #: (t, r) since a residual isolation: the withdrawal rule (RAMP_LIMIT_MPS2)
+    #: (t, r) since a residual isolation: the withdrawal rule (``ramp_limit_mps2``)
     _ramp: deque[tuple[float, float]] = field(default_factory=deque)
-    _d2y_sq: deque[float] = field(default_factory=lambda: deque(maxlen=64))
+    _d2y_sq: deque[float] = field(init=False)
     var_d2y_mps2: float = 0.0
     _v_imu_at_value: float = 0.0  # the IMU's velocity when the current value was first seen
     #: running fraction of samples that repeat the previous value exactly (healthy axis);
-    #: starts at 0.5 (a prior worth 2 samples: "unknown", repeats need the IMU's word)
-    _repeat_rate: float = 0.5
-    _repeat_n: float = 2.0
-    _rate_before_run: float = 0.5
+    #: starts at ``freeze_prior_rate`` (a prior worth ``freeze_prior_samples``: "unknown",
+    #: repeats need the IMU's word)
+    _repeat_rate: float = field(init=False)
+    _repeat_n: float = field(init=False)
+    _rate_before_run: float = field(init=False)
+    #: the winsorising cap of the running means, in their current value (``scale_winsor_sigma``²)
+    _winsor_sq: float = field(init=False)
 
     def __post_init__(self) -> None:
+        t = self.cfg.tuning
+        self._iso_resid = deque(maxlen=t.bias_recovery_history)
+        self._d2y_sq = deque(maxlen=t.own_noise_history)
+        self._repeat_rate = self._rate_before_run = t.freeze_prior_rate
+        self._repeat_n = t.freeze_prior_samples
+        self._winsor_sq = t.scale_winsor_sigma**2
         self._resid = deque(maxlen=max(self.cfg.bias_samples, self.cfg.noise_samples + 1))
         self._var_r = self.cfg.sigma_meas_mps**2
         # white noise of σ_meas: var(y_k − 2y_(k−1) + y_(k−2)) = 6σ²
@@ -138,7 +143,7 @@ class AxisMonitor:
             and self.fit.ref is not None
             and self.fit.span_s() >= self.cfg.warmup_s
             and self.index in self.fit.fitted_axes
-            and self.fit.rows_per_axis[self.index] >= 10
+            and self.fit.rows_per_axis[self.index] >= self.cfg.tuning.arm_min_rows
         )
 
     def reference(self) -> Reference | None:
@@ -179,12 +184,13 @@ class AxisMonitor:
                     self._learn_scale(rp)
                 if self._frozen is not None:
                     self._rearm_rows += 1
-                    if self._rearm_rows >= REARM_ROWS:
+                    if self._rearm_rows >= self.cfg.tuning.rearm_rows:
                         self._frozen = None
 
     def _learn_scale(self, r: float) -> None:
-        """σ_r: running mean of r² (winsorised at 4σ) over ~``scale_samples`` samples."""
-        cap = 16.0 * self._var_r
+        """σ_r: running mean of r² (winsorised at ``scale_winsor_sigma``) over
+        ~``scale_samples`` samples."""
+        cap = self._winsor_sq * self._var_r
         k = 1.0 / self.cfg.scale_samples
         self._var_r += k * (min(r * r, cap) - self._var_r)
         self.sigma_r_mps = max(self.cfg.sigma_floor_mps, math.sqrt(self._var_r))
@@ -245,14 +251,15 @@ class AxisMonitor:
         )
 
     def _spread_ratio(self) -> float:
-        """Robust spread (1.4826 MAD) of the bias window over 3σ_r: a bias step keeps it
-        small (the window holds two clusters), a noise burst makes it large."""
+        """Robust spread (1.4826 MAD) of the bias window over ``noise_spread_sigma`` σ_r: a
+        bias step keeps it small (the window holds two clusters), a noise burst makes it
+        large."""
         rb = list(self._resid)[-self.cfg.bias_samples :]
         if len(rb) < 3:
             return 0.0
         med = statistics.median(rb)
         mad = statistics.median(abs(x - med) for x in rb)
-        return 1.4826 * mad / (3.0 * self.sigma_r_mps)
+        return 1.4826 * mad / (self.cfg.tuning.noise_spread_sigma * self.sigma_r_mps)
 
     def update(self, t_s: float, y_mps: float, a_int_mps: float, ints: Integrals) -> AxisVerdict:
         """One measurement at vehicle time ``t_s``; ``a_int_mps`` = A_j(t), ``ints`` = (B, C)."""
@@ -294,7 +301,7 @@ class AxisMonitor:
                 if self.var_diff_mps2 == 0.0:
                     self.var_diff_mps2 = d2
                 else:
-                    cap = 16.0 * self.var_diff_mps2
+                    cap = self._winsor_sq * self.var_diff_mps2
                     self.var_diff_mps2 += (min(d2, cap) - self.var_diff_mps2) / cfg.scale_samples
             self._resid.append(r)
         self._r_prev = r
@@ -303,7 +310,7 @@ class AxisMonitor:
             d2y_sq = (y_mps - 2.0 * y1 + y2) ** 2
             self._d2y_sq.append(d2y_sq)
             if self.state is OK:
-                cap = 16.0 * self.var_d2y_mps2
+                cap = self._winsor_sq * self.var_d2y_mps2
                 self.var_d2y_mps2 += (min(d2y_sq, cap) - self.var_d2y_mps2) / cfg.scale_samples
         self._y_prev = (y_mps, y1)
         bias_ratio, noise_ratio = self._ratios()
@@ -316,7 +323,7 @@ class AxisMonitor:
         if self.state in (FAULTY, RECOVERING):
             if math.isfinite(r) and self.fault is not None and self.fault.kind in RESIDUAL_KINDS:
                 self._ramp.append((t_s, r))
-                while self._ramp[0][0] < t_s - RAMP_WINDOW_S:
+                while self._ramp[0][0] < t_s - cfg.tuning.ramp_window_s:
                     self._ramp.popleft()
             return self._recovery(
                 t_s, r=r, repeated=repeated, bias_ratio=bias_ratio, noise_ratio=noise_ratio,
@@ -342,13 +349,15 @@ class AxisMonitor:
         return AxisVerdict(not repeated, math.nan, ratio, self.state)
 
     def ramping(self, t_s: float) -> bool:
-        """The residual against the dead reckoning ramps faster than RAMP_LIMIT_MPS2 over
-        the last RAMP_WINDOW_S of a residual isolation while the measurement itself is
-        smooth: its least-squares slope beyond the limit plus 3σ of its own scatter, and a
+        """The residual against the dead reckoning ramps faster than ``ramp_limit_mps2`` over
+        the last ``ramp_window_s`` of a residual isolation while the measurement itself is
+        smooth: its least-squares slope beyond the limit plus ``ramp_slope_sigma`` σ of its
+        own scatter, and a
         line fits it better than any single step (a bias that ends is a step, and
         steepens a line through it)."""
         pts = self._ramp
-        if len(pts) < 8 or t_s - self._t_isolated_s < RAMP_WINDOW_S:
+        tun = self.cfg.tuning
+        if len(pts) < tun.ramp_min_samples or t_s - self._t_isolated_s < tun.ramp_window_s:
             return False
         # a noise fault's residual can ramp by chance over 1 s (10 samples of a filtered
         # stream): only a smooth measurement, its own second differences at their healthy
@@ -366,7 +375,7 @@ class AxisMonitor:
         e = r - r.mean() - slope * dt
         sse_line = float(e @ e)
         sigma_slope = math.sqrt(sse_line / (len(pts) - 2) / sxx)
-        if abs(slope) <= RAMP_LIMIT_MPS2 + 3.0 * sigma_slope:
+        if abs(slope) <= tun.ramp_limit_mps2 + tun.ramp_slope_sigma * sigma_slope:
             return False
         # the best single step: two constant segments, split anywhere (≥ 2 samples each)
         c1 = np.cumsum(r)
@@ -418,7 +427,10 @@ class AxisMonitor:
         """Isolated: healthy again for ``recovery_s`` (against the dead reckoning) -> OK."""
         if self.fault is not None and self.fault.kind == FaultKind.UNAIDED.value:
             return AxisVerdict(False, r, ratio, self.state)  # the autopilot decides (set_unaided)
-        slack = self.bias_threshold_mps() + 3.0 * self.sigma_dead_reckoning_mps(t_s)
+        tun = self.cfg.tuning
+        slack = self.bias_threshold_mps() + tun.recovery_dr_sigma * self.sigma_dead_reckoning_mps(
+            t_s
+        )
         if self.fault is not None and self.fault.kind == FaultKind.BIAS.value:
             return self._bias_recovery(t_s, r=r, repeated=repeated, ratio=ratio)
         if (
@@ -430,7 +442,9 @@ class AxisMonitor:
         healthy = (
             not repeated
             and (math.isfinite(r) or math.isinf(slack))
-            and (not math.isfinite(r) or abs(r) <= slack + 2.0 * self.sigma_r_mps)
+            and (
+                not math.isfinite(r) or abs(r) <= slack + tun.recovery_meas_sigma * self.sigma_r_mps
+            )
             and (noise_ratio <= 1.0 or math.isinf(slack))
             and not (bias_ratio * self.bias_threshold_mps() > slack)
         )
@@ -438,12 +452,13 @@ class AxisMonitor:
 
     def _bias_recovery(self, t_s: float, *, r: float, repeated: bool, ratio: float) -> AxisVerdict:
         """A bias fault ends when the measurement steps back by about the fault's size
-        (a drop of more than half of it between two successive windows of
-        ``bias_samples``), or comes back within a fixed level of the dead reckoning (half
-        the fault, at least ``bias_threshold_mps``). The level does not grow with the dead
+        (a drop of more than ``bias_step_back_fraction`` of it between two successive
+        windows of ``bias_samples``), or comes back within a fixed level of the dead
+        reckoning (``bias_return_fraction`` of the fault, at least ``bias_threshold_mps``). The level does not grow with the dead
         reckoning's uncertainty: a persistent bias would pass a growing one. After the
         step back the level must hold (within the threshold) for ``recovery_s``."""
         cfg = self.cfg
+        tun = cfg.tuning
         n = cfg.bias_samples
         beta = self._fault_level_mps
         hist = self._iso_resid
@@ -455,16 +470,18 @@ class AxisMonitor:
             if self._stepped_back_level is None and len(hist) >= 2 * n:
                 before = statistics.median(list(hist)[-2 * n : -n])
                 step = now - before
-                if step * beta < 0.0 and abs(step) > 0.5 * abs(beta):
+                if step * beta < 0.0 and abs(step) > tun.bias_step_back_fraction * abs(beta):
                     self._stepped_back_level = now
             if self._stepped_back_level is not None:
                 healthy = abs(now - self._stepped_back_level) <= max(
-                    cfg.bias_threshold_mps, 3.0 * self.sigma_r_mps
+                    cfg.bias_threshold_mps, tun.bias_hold_sigma * self.sigma_r_mps
                 )
                 if not healthy:
                     self._stepped_back_level = None  # moved again: wait for a new step
             else:
-                healthy = abs(now) <= max(cfg.bias_threshold_mps, 0.5 * abs(beta))
+                healthy = abs(now) <= max(
+                    cfg.bias_threshold_mps, tun.bias_return_fraction * abs(beta)
+                )
         return self._recovery_verdict(t_s, healthy, r, ratio)
 
     def _recovery_verdict(self, t_s: float, healthy: bool, r: float, ratio: float) -> AxisVerdict:

@@ -47,12 +47,14 @@ N_THETA = 8
 LAG = 7
 #: Window (s) of the lag regressor L: the IMU's mean earth acceleration over it.
 LAG_WINDOW_S = 0.1
-#: The lag is a property of the link, learnt over many windows: the memory's time
-#: constant (s), and the smallest σ of the prior it gives later fits (a lag can change).
-LAG_MEMORY_S = 120.0
-LAG_SIGMA_MIN_S = 0.02
-#: Precision of the (free) V0 prior, 1/(m/s)²: 1/(100 m/s)².
+#: (The lag is a property of the link, learnt over many windows: the memory's time
+#: constant and the smallest σ of the prior it gives later fits are ``FdiTuning``'s
+#: ``lag_memory_s`` and ``lag_sigma_min_s``.)
+#: Precision of the (free) V0 prior, 1/(m/s)²: 1/(100 m/s)², far wider than any velocity.
 _V0_PRECISION = 1e-4
+#: A fitted parameter is "observed" (used rather than its prior's zero mean) beyond this
+#: many σ of its own (2σ: a 5 % chance that noise alone looks observed).
+OBSERVED_SIGMA = 2.0
 
 FloatArray = np.ndarray[Any, np.dtype[np.float64]]
 #: One row's regressors: B(τ) flattened (9), C(τ) (3) and the earth-frame acceleration
@@ -160,9 +162,10 @@ class Reference:
         return (self.theta[3], self.theta[4], self.theta[5])
 
     def observed(self, k: int) -> float:
-        """θ̂_k if the data observed it (|θ̂_k| > 2σ_k), else 0 (the prior's mean)."""
+        """θ̂_k if the data observed it (|θ̂_k| > ``OBSERVED_SIGMA`` σ_k), else 0 (the
+        prior's mean)."""
         th = self.theta[k]
-        return th if th * th > 4.0 * max(float(self.cov[k, k]), 0.0) else 0.0
+        return th if th * th > OBSERVED_SIGMA**2 * max(float(self.cov[k, k]), 0.0) else 0.0
 
     def held(self) -> Reference:
         """This reference to hold through an isolation (its b and δψ are held as they are):
@@ -222,7 +225,7 @@ class ReferenceFit:
         goes into the lag memory (it is a property of the link, kept as long)."""
         self.carried_prior = (tuple(theta[:4]), tuple(max(x, 1e-6) for x in sigma[:4]), until_s)
         base = 1.0 / self.cfg.prior_lag_s**2
-        info = 1.0 / max(sigma[4], LAG_SIGMA_MIN_S) ** 2 - base
+        info = 1.0 / max(sigma[4], self.cfg.tuning.lag_sigma_min_s) ** 2 - base
         if info > 0.0:  # the prior's mean is then (memory info · memory mean) / (base + info)
             self.lag_memory_info = info
             self.lag_memory_s = theta[4] * (base + info) / info
@@ -247,7 +250,9 @@ class ReferenceFit:
         while rows and rows[0][0] < t_min:
             self.rows_per_axis[rows.popleft()[1]] -= 1
             self._n_dropped += 1
-        if self._since_fit >= 15 or (not self.fitted and self._since_fit > 0):
+        if self._since_fit >= self.cfg.tuning.refit_rows or (
+            not self.fitted and self._since_fit > 0
+        ):
             new_rows = self._since_fit
             self._since_fit = 0
             self._fit(new_rows)
@@ -261,9 +266,10 @@ class ReferenceFit:
 
     def _lag_prior(self) -> tuple[float, float]:
         """(mean, precision) of the lag's prior: the config's (zero mean, σ ``prior_lag_s``)
-        combined with what earlier windows learnt (``lag_memory``), at most 1/LAG_SIGMA_MIN²."""
+        combined with what earlier windows learnt (``lag_memory``), at most
+        1/``lag_sigma_min_s``²."""
         base = 1.0 / self.cfg.prior_lag_s**2
-        info = min(base + self.lag_memory_info, 1.0 / LAG_SIGMA_MIN_S**2)
+        info = min(base + self.lag_memory_info, 1.0 / self.cfg.tuning.lag_sigma_min_s**2)
         mean = self.lag_memory_info * self.lag_memory_s / (base + self.lag_memory_info)
         return min(max(mean, 0.0), self.cfg.max_lag_s), info
 
@@ -278,10 +284,10 @@ class ReferenceFit:
         """Fold this window's evidence on the lag into the memory. The window's likelihood
         alone (its posterior minus the prior it started from) is weighted by the fraction
         of its rows that are new (windows overlap: a row is in ~20 fits), and the memory
-        forgets with time constant LAG_MEMORY_S (a link's lag can change)."""
+        forgets with time constant ``lag_memory_s`` (a link's lag can change)."""
         mean0, info0 = prior
         info_like = 1.0 / max(var_lag, 1e-12) - info0
-        decay = math.exp(-max(t_s - self._t_lag_memory_s, 0.0) / LAG_MEMORY_S)
+        decay = math.exp(-max(t_s - self._t_lag_memory_s, 0.0) / self.cfg.tuning.lag_memory_s)
         self._t_lag_memory_s = t_s
         kept = self.lag_memory_info * decay
         if info_like <= 1.0 / self.cfg.prior_lag_s**2:
@@ -323,9 +329,9 @@ class ReferenceFit:
 
     def _fit(self, new_rows: int = 0) -> None:
         rows = self.rows
-        if len(rows) < 12 or self.span_s() < 1.0:
-            return
         cfg = self.cfg
+        if len(rows) < cfg.tuning.fit_min_rows or self.span_s() < cfg.tuning.fit_min_span_s:
+            return
         n = len(rows)
         b0 = rows[0][3]
         c0 = rows[0][4]
@@ -397,7 +403,7 @@ class ReferenceFit:
         # a measurement is late, never early; and no autopilot is later than max_lag_s
         theta[LAG] = min(max(float(theta[LAG]), 0.0), cfg.max_lag_s)
         if not (self.frozen_bias and old is not None) and (
-            (theta[LAG] - lag_prior[0]) ** 2 <= 4.0 * cov[LAG, LAG]
+            (theta[LAG] - lag_prior[0]) ** 2 <= cfg.tuning.lag_keep_sigma**2 * cov[LAG, LAG]
         ):
             # a window that does not move the lag clearly (2σ) from what was known keeps
             # the known value: its own estimate times L (the IMU's acceleration, 2 m/s² of

@@ -4,37 +4,72 @@ Adaptation (``adapt_gamma_full``). Every ``GAMMA_UPDATE_SAMPLES`` measurements, 
 every axis is healthy and armed, γ of ``full`` is set from the noise this vehicle sends
 (:func:`~glmav_observer.estimation.observer.gamma_full_optimal`): the measurement's white
 noise from successive residual differences, E[Δr²] = 2 σ_y² + q Δt_y; the IMU's (q) from
-the despiker; the bias from the fit (at least 0.05 m/s²). A change is limited to ×/÷ 1.5
-per update.
+the despiker; the bias from the fit (at least ``bias_floor_mps2``). A change is limited to ×/÷
+``max_step_ratio`` per update, and one below ``min_change_fraction`` is not made
+(:class:`GainConfig`).
 
 Recovery blend. Back from a hand-over, ``full`` starts from the dead-reckoned estimate and
-converges to the re-admitted measurement at ``gamma_full_min`` for ``RECOVERY_BLEND_S``,
+converges to the re-admitted measurement at ``gamma_full_min`` for ``recovery_blend_s``,
 so that the dead reckoning's drift is corrected smoothly (in ~1/γ_min), not in one step.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
 from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.observer import gamma_full_optimal
+from glmav_observer.estimation.reasons import const
 
-#: After a switch back to ``full``, its gain stays at ``gamma_full_min`` this long (s):
-#: the dead reckoning's drift is corrected in ~1/γ_min = 0.25 s, not in one step.
-RECOVERY_BLEND_S = 1.0
-#: Measurements between two updates of the gain of ``full`` (~5 s at 25 Hz).
-GAMMA_UPDATE_SAMPLES = 125
+
+@dataclass(frozen=True, slots=True)
+class GainConfig:
+    """The inner constants of the gain policy (not read from ``service.toml``; its bounds
+    are ``gamma_full_min``/``gamma_full_max`` of ``[estimation]``)."""
+
+    recovery_blend_s: float = const(
+        1.0, unit="s", source="physics",
+        reason="after a switch back to `full` its gain stays at gamma_full_min this long: "
+        "the dead reckoning's drift is corrected in ~1/γ_min = 0.25 s (4 time constants "
+        "in 1 s: 2 % left), not in one step",
+    )  # fmt: skip
+    update_samples: int = const(
+        125, unit="samples", source="statistic",
+        reason="measurements between two updates of γ: ~5 s at 25 Hz, enough for the "
+        "running noise estimate to move (its memory is scale_samples = 250)",
+    )  # fmt: skip
+    max_step_ratio: float = const(
+        1.5, unit="", source="requirement",
+        reason="γ changes by at most ×/÷ this per update: from gamma_full_min to "
+        "gamma_full_max (×5) in 4 updates (20 s), so one noisy update cannot jump the gain",
+    )  # fmt: skip
+    min_change_fraction: float = const(
+        0.02, unit="", source="statistic",
+        reason="a change smaller than this fraction is not made: below the 4.5 % σ of the "
+        "noise estimate it rests on (σ/√(2·250)), so the gain does not dither",
+    )  # fmt: skip
+    bias_floor_mps2: float = const(
+        0.05, unit="m/s²", source="physics",
+        reason="the accelerometer bias assumed by the optimal gain is at least this: the "
+        "horizontal bias left after calibration plus g·sin of a 0.2° attitude error "
+        "(as AidedAxisConfig.accel_bias_h_mps2); a fit that observed none is not a "
+        "bias-free IMU",
+    )  # fmt: skip
 
 
 class FullGain:
     """The gain policy of ``full`` for one vehicle (module docstring)."""
 
-    def __init__(self, adapt: bool, gamma_min: float, gamma_max: float) -> None:
+    def __init__(
+        self, adapt: bool, gamma_min: float, gamma_max: float, cfg: GainConfig | None = None
+    ) -> None:
         self.adapt = adapt
         self.gamma_min = gamma_min
         self.gamma_max = gamma_max
+        self.cfg = cfg or GainConfig()
         self._n_meas = 0
         self._saved: float | None = None  # the gain before a recovery blend
         self._t_restore_s = math.inf
@@ -51,7 +86,7 @@ class FullGain:
         if self._saved is None:
             self._saved = bank.gamma_gain[0]
         bank.set_gamma("full", min(self._saved, self.gamma_min))
-        self._t_restore_s = t + RECOVERY_BLEND_S
+        self._t_restore_s = t + self.cfg.recovery_blend_s
 
     def on_measurement(
         self,
@@ -61,9 +96,10 @@ class FullGain:
         imu_hz: float,
         y_interval_s: float,
     ) -> bool:
-        """Count a measurement; every ``GAMMA_UPDATE_SAMPLES`` adapt γ. True if it changed."""
+        """Count a measurement; every ``update_samples`` adapt γ. True if it changed."""
         self._n_meas += 1
-        if not self.adapt or self._n_meas % GAMMA_UPDATE_SAMPLES != 0:
+        cfg = self.cfg
+        if not self.adapt or self._n_meas % cfg.update_samples != 0:
             return False
         axes = fdi.axes
         if fdi.faulty_axes() or not fdi.armed() or y_interval_s <= 0.0 or self._saved is not None:
@@ -73,13 +109,14 @@ class FullGain:
         q = despike.noise_var_mps2() / imu_hz
         # E[Δr²] = 2 σ_y² + q Δt_y (the IMU's white noise over one interval)
         var_y = max(min(a.var_diff_mps2 for a in axes) / 2.0 - q * y_interval_s / 2.0, 1e-8)
-        b = max(math.sqrt(sum(x * x for x in fdi.fit.bias_body_mps2)), 0.05)
+        b = max(math.sqrt(sum(x * x for x in fdi.fit.bias_body_mps2)), cfg.bias_floor_mps2)
         target = gamma_full_optimal(
             math.sqrt(var_y), 1.0 / y_interval_s, q, b, self.gamma_min, self.gamma_max
         )
         now = bank.gamma_gain[0]
-        new = min(max(target, now / 1.5), now * 1.5)
-        if abs(new - now) <= 0.02 * now:
+        step = cfg.max_step_ratio
+        new = min(max(target, now / step), now * step)
+        if abs(new - now) <= cfg.min_change_fraction * now:
             return False
         bank.set_gamma("full", new)
         return True

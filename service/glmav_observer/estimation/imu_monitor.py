@@ -36,31 +36,65 @@ import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
+from glmav_observer.estimation.reasons import const
+
 Vec3 = tuple[float, float, float]
 
 
 @dataclass(frozen=True, slots=True)
 class ImuMonitorConfig:
-    """Settings of the redundant-IMU monitor (``[fdi]``: ``imu_*``)."""
+    """Settings of the redundant-IMU monitor (``[fdi.imu]`` of ``configs/service.toml``)."""
 
-    #: the window of the differences' means, s: 25 samples at ArduPilot's 50 Hz streams
-    window_s: float = 0.5
-    #: the smallest bias reported, m/s²: above the 1 s mean differences of healthy IMUs
-    #: on one airframe (lever arm, vibration: 0.001-0.005 m/s² on ArduPilot's SITL) with a
-    #: margin for real sensors, below the 0.3-0.5 m/s² biases that matter for velocity
-    #: (0.3 m/s² dead-reckons 0.3 m/s in 1 s)
-    floor_mps2: float = 0.15
-    #: the deviation of a window's mean, in its own σ, that is a change (a false alarm in
-    #: ~1e-6 windows per axis for Gaussian noise)
-    k_sigma: float = 5.0
-    #: the baseline's time constant, s: slow against a fault, fast against temperature
-    baseline_tau_s: float = 60.0
-    #: a secondary sample older than this, s, is not compared (a stream that stopped)
-    max_age_s: float = 0.1
-    #: two IMUs: the onset event waits this long, s, for the GPS to tell which one is
-    #: wrong (``VehicleEstimator._resolve_imu`` takes 1 s of GPS velocity), then is
-    #: published naming no IMU
-    resolve_timeout_s: float = 3.0
+    window_s: float = const(
+        0.5, unit="s", source="physics",
+        reason="the window of the differences' means: 25 samples at ArduPilot's 50 Hz "
+        "streams; the onset is published a window after the fault, well inside the "
+        "dead reckoning's 0.3 m/s per s at a 0.3 m/s² bias",
+    )  # fmt: skip
+    floor_mps2: float = const(
+        0.15, unit="m/s²", source="measured",
+        reason="the smallest bias reported: above the 1 s mean differences of healthy IMUs "
+        "on one airframe (lever arm, vibration: 0.001-0.005 m/s² on ArduPilot's SITL "
+        "corpus) with a margin for real sensors, below the 0.3-0.5 m/s² biases that "
+        "matter for velocity (0.3 m/s² dead-reckons 0.3 m/s in 1 s)",
+        sensitivity=True,
+    )  # fmt: skip
+    k_sigma: float = const(
+        5.0, unit="σ", source="statistic",
+        reason="the deviation of a window's mean, in its own σ, that is a change (a false "
+        "alarm in ~1e-6 windows per axis for Gaussian noise)",
+    )  # fmt: skip
+    baseline_tau_s: float = const(
+        60.0, unit="s", source="physics",
+        reason="the baseline's time constant: slow against a fault (a step), fast against "
+        "temperature drift of a calibration offset (minutes)",
+    )  # fmt: skip
+    max_age_s: float = const(
+        0.1, unit="s", source="physics",
+        reason="a secondary sample older than this is not compared (a stream that "
+        "stopped): 5 periods at 50 Hz",
+    )  # fmt: skip
+    resolve_timeout_s: float = const(
+        3.0, unit="s", source="requirement",
+        reason="two IMUs: the onset event waits this long for the GPS to tell which one "
+        "is wrong (VehicleEstimator._resolve_imu takes 1 s of GPS velocity, RESOLVE_S), "
+        "then is published naming no IMU",
+    )  # fmt: skip
+    min_samples: int = const(
+        5, unit="samples", source="statistic",
+        reason="a window's mean and σ need at least this many differences (σ/√n from "
+        "fewer is itself too uncertain for a 5σ test)",
+    )  # fmt: skip
+    min_fill: float = const(
+        0.8, unit="", source="statistic",
+        reason="a window is tested once it spans this fraction of window_s (after a start "
+        "or a gap a half-filled window's σ/√n is too small a sample)",
+    )  # fmt: skip
+    end_fraction: float = const(
+        0.5, unit="", source="statistic",
+        reason="a fault ends when every deviation stays below this fraction of the "
+        "threshold for a whole window: a hysteresis of half the threshold",
+    )  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,7 +207,7 @@ class ImuConsistency:
             while p.window and p.window[0][0] <= t_s - cfg.window_s:
                 p.window.popleft()
             mean, sig, n = p.mean_and_sigma()
-            if n < 5 or t_s - p.window[0][0] < 0.8 * cfg.window_s:
+            if n < cfg.min_samples or t_s - p.window[0][0] < cfg.min_fill * cfg.window_s:
                 continue  # (a window half filled: after a start or a gap)
             if p.baseline is None:
                 p.baseline = list(mean)
@@ -197,7 +231,8 @@ class ImuConsistency:
         axes = range(3)
         thr = self._threshold([max(s[1][a] for s in dev.values()) for a in axes])
         exceeds = any(abs(m[a]) > thr[a] for m, _ in dev.values() for a in axes)
-        quiet = all(abs(m[a]) < 0.5 * thr[a] for m, _ in dev.values() for a in axes)
+        end = self.cfg.end_fraction
+        quiet = all(abs(m[a]) < end * thr[a] for m, _ in dev.values() for a in axes)
         sig = max(dev.values(), key=lambda v: max(v[1]))[1]
         if len(dev) == 1:
             (m, _) = next(iter(dev.values()))

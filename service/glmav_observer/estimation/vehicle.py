@@ -60,7 +60,7 @@ from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.aiding import LostAxisAiding
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
-from glmav_observer.estimation.drift import OVERDUE_INTERVALS, DriftAxes, drift_sigma_ned_mps
+from glmav_observer.estimation.drift import DriftAxes, drift_sigma_ned_mps
 from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
@@ -186,7 +186,7 @@ class VehicleEstimator:
         #: the autopilot's word on its velocity's aiding (a vehicle fact: kept across restarts)
         self.drift = DriftAxes()
         #: the vehicle's redundant IMUs compared (kept across restarts: sensor facts)
-        self.imus = ImuConsistency() if config.fdi.imu_monitor else None
+        self.imus = ImuConsistency(config.fdi.imu) if config.fdi.imu_monitor else None
         #: (t, GPS v n e, A n e) at the first GPS sample after a two-IMU fault's onset
         self._imu_anchor: tuple[float, tuple[float, float], tuple[float, float]] | None = None
         self._seed: EstimatorSeed | None = None
@@ -206,7 +206,7 @@ class VehicleEstimator:
         self._seed_check_t0_s = None
         self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2)
         self.fdi = FaultDetector(cfg.fdi)
-        self.despike = Despiker()
+        self.despike = Despiker(cfg.fdi.despike)
         self.inputs = HeldInputs(cfg.g_mps2)
         self.streams = StreamTiming(cfg.max_gap_s, cfg.fdi.missing_timeout_s)
         self.sel = ActiveSelection(cfg.compensate_accel_bias, cfg.handover_contamination_mps)
@@ -772,7 +772,7 @@ class VehicleEstimator:
         if (
             self.drift.unaided_since_s == _NONE3
             and not self.fdi.faulty_axes()
-            and t - streams.t_y_s <= OVERDUE_INTERVALS * streams.y_interval_s
+            and t - streams.t_y_s <= self.cfg.fdi.overdue_intervals * streams.y_interval_s
         ):
             return None
         sig = drift_sigma_ned_mps(

@@ -6,10 +6,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from glmav_observer.estimation.fdi_axis import RAMP_LIMIT_MPS2, RAMP_WINDOW_S, AxisMonitor
+from glmav_observer.estimation.fdi_axis import AxisMonitor
 from glmav_observer.estimation.fdi_reference import ReferenceFit
 from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.records import FaultEvent
+
+RAMP_LIMIT_MPS2 = FdiConfig().tuning.ramp_limit_mps2
+RAMP_WINDOW_S = FdiConfig().tuning.ramp_window_s
 
 
 def _isolated_axis(residual: Callable[[float], float], rate_hz: float = 10.0) -> AxisMonitor:
