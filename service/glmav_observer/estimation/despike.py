@@ -37,7 +37,7 @@ class DespikeConfig:
         8.0, unit="σ", source="statistic",
         reason="or this many RMS of ‖Δf‖ between accepted samples, if larger: a vibrating "
         "IMU raises its own bar (ArduPilot SITL SIM_ACC1_RND = 5: ‖Δf‖ RMS ≈ 12 m/s²); "
-        "8σ of a χ₃-like norm is exceeded by noise in < 1e-9 of the samples",
+        "white noise exceeds 8 RMS practically never (‖Δf‖²/2σ² ~ χ²₃ > 192: 2e-41)",
     )  # fmt: skip
     tau_samples: int = const(
         100, unit="samples", source="physics",
