@@ -104,7 +104,8 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                                 "times any plausible value (uninformed); c 0.5 m/s², a MEMS "
                                 "accelerometer's bias after calibration plus a trim force. "
                                 "Measured on f_coax_clean: an uninformed c gave a 1.4 m/s "
-                                "phantom wind and 2 m/s errors after the next turn",
+                                "phantom wind and 2 m/s errors after the next turn (the "
+                                "sensitivity varies c, the first element)",
                                 sensitivity=True),
         "sigma_f_initial_mps2": _r("m/s²", "physics", "σ_f before 10 effective samples: "
                                    "large, untrusted until data says otherwise"),

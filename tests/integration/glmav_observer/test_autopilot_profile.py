@@ -62,7 +62,7 @@ def test_a_launch_on_late_gps_isolates_nothing_and_learns_the_lag(
     # but a compensation lagged by 0.1 s). Bound: clearly observed (≥ 0.06 s, 3σ) and not
     # above the truth (+ 1σ of the fit, 0.02 s).
     assert 0.06 <= fit.measurement_lag_s <= PROFILE_LAG_S + 0.02, fit
-    assert fit.measurement_lag_sigma_s <= 0.021  # the memory's floor (LAG_SIGMA_MIN_S)
+    assert fit.measurement_lag_sigma_s <= 0.021  # the memory's floor (FdiTuning.lag_sigma_min_s)
 
 
 def test_a_launch_on_late_gps_is_estimated_at_the_profiles_noise(
@@ -96,7 +96,7 @@ def test_an_isolation_on_a_lost_attitude_is_withdrawn(tmp_path: Path) -> None:
     launch's ballistic phase the attitude estimator tilts, n's residual ramps and n is
     isolated at 3.6 s. Dead-reckoned on the lost attitude, n stayed 2.66 m/s RMS off for
     the rest of the flight. A velocity sensor's fault is an offset or noise; a residual
-    that ramps at more than RAMP_LIMIT_MPS2 over RAMP_WINDOW_S is the IMU's path, and the
+    that ramps at more than ramp_limit_mps2 over ramp_window_s is the IMU's path, and the
     isolation is withdrawn (fdi.FaultDetector._decide)."""
     sitl = load_sitl_config()
     ap = dataclasses.replace(sitl.autopilot, velocity_lag_s=0.1, velocity_filter_tau_s=0.0)
