@@ -22,8 +22,7 @@ from typing import Any, get_args
 from glmav_observer.configurations import DEFAULT_GAMMA
 from glmav_observer.estimation import EForm
 from glmav_observer.estimation.aero.control import ControlMapping
-from glmav_observer.estimation.despike import DespikeConfig
-from glmav_observer.estimation.fdi_types import FdiConfig
+from glmav_observer.estimation.fdi_types import DespikeConfig, FdiConfig
 from glmav_observer.estimation.imu_monitor import ImuMonitorConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig

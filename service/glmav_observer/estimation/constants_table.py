@@ -31,7 +31,7 @@ CLASSES: tuple[tuple[str, str], ...] = (
     ("FdiConfig", f"{_PKG}.fdi_types"),
     ("FdiTuning", f"{_PKG}.fdi_types"),
     ("ImuMonitorConfig", f"{_PKG}.imu_monitor"),
-    ("DespikeConfig", f"{_PKG}.despike"),
+    ("DespikeConfig", f"{_PKG}.fdi_types"),
     ("GainConfig", f"{_PKG}.gain"),
     ("EstimatorConfig", f"{_PKG}.vehicle"),
     ("DragModelConfig", f"{_PKG}.aero.model"),

@@ -15,45 +15,17 @@ raises its own bar.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
-from glmav_observer.estimation.reasons import const
 
 Vec3 = tuple[float, float, float]
-
-
-@dataclass(frozen=True, slots=True)
-class DespikeConfig:
-    """The spike threshold (``[fdi.despike]`` of ``configs/service.toml``)."""
-
-    floor_mps2: float = const(
-        40.0, unit="m/s²", source="physics",
-        reason="the smallest ‖Δf‖ between successive IMU samples held out as a spike: "
-        "4 g, beyond a multirotor's manoeuvre between two samples (< 1 g at 50 Hz) and "
-        "below a shock's or a corrupt value's (hundreds of m/s²); raise it for a vehicle "
-        "whose IMU sees larger steps (a launch)",
-    )  # fmt: skip
-    k_sigma: float = const(
-        8.0, unit="σ", source="statistic",
-        reason="or this many RMS of ‖Δf‖ between accepted samples, if larger: a vibrating "
-        "IMU raises its own bar (ArduPilot SITL SIM_ACC1_RND = 5: ‖Δf‖ RMS ≈ 12 m/s²); "
-        "white noise exceeds 8 RMS practically never (‖Δf‖²/2σ² ~ χ²₃ > 192: 2e-41)",
-    )  # fmt: skip
-    tau_samples: int = const(
-        100, unit="samples", source="physics",
-        reason="memory of the running ‖Δf‖ RMS: 2 s at 50 Hz, fast against a change of "
-        "vibration (throttle), slow against one spike",
-    )  # fmt: skip
 
 
 class Despiker:
     """Holds out isolated specific-force spikes (module docstring)."""
 
-    def __init__(self, cfg: DespikeConfig | None = None) -> None:
-        c = cfg or DespikeConfig()
-        self.floor_mps2 = c.floor_mps2
-        self.k_sigma = c.k_sigma
-        self._k = 1.0 / c.tau_samples
+    def __init__(self, floor_mps2: float = 40.0, k_sigma: float = 8.0, tau_samples: int = 100):
+        self.floor_mps2 = floor_mps2
+        self.k_sigma = k_sigma
+        self._k = 1.0 / tau_samples
         self._last: Vec3 | None = None
         self._candidate: Vec3 | None = None
         self._ms_diff = 0.0

@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import NamedTuple
 
-from glmav_observer.estimation.despike import DespikeConfig
 from glmav_observer.estimation.imu_monitor import ImuMonitorConfig
 from glmav_observer.estimation.reasons import const
 
@@ -37,6 +36,31 @@ class FaultKind(Enum):
     BIAS = "bias"
     NOISE = "noise"
     UNAIDED = "unaided"  # the autopilot says this velocity is not aided (GPS lost)
+
+
+@dataclass(frozen=True, slots=True)
+class DespikeConfig:
+    """The IMU spike threshold (``[fdi.despike]`` of ``configs/service.toml``) of
+    :class:`~glmav_observer.estimation.despike.Despiker`."""
+
+    floor_mps2: float = const(
+        40.0, unit="m/s²", source="physics",
+        reason="the smallest ‖Δf‖ between successive IMU samples held out as a spike: "
+        "4 g, beyond a multirotor's manoeuvre between two samples (< 1 g at 50 Hz) and "
+        "below a shock's or a corrupt value's (hundreds of m/s²); raise it for a vehicle "
+        "whose IMU sees larger steps (a launch)",
+    )  # fmt: skip
+    k_sigma: float = const(
+        8.0, unit="σ", source="statistic",
+        reason="or this many RMS of ‖Δf‖ between accepted samples, if larger: a vibrating "
+        "IMU raises its own bar (ArduPilot SITL SIM_ACC1_RND = 5: ‖Δf‖ RMS ≈ 12 m/s²); "
+        "white noise exceeds 8 RMS practically never (‖Δf‖²/2σ² ~ χ²₃ > 192: 2e-41)",
+    )  # fmt: skip
+    tau_samples: int = const(
+        100, unit="samples", source="physics",
+        reason="memory of the running ‖Δf‖ RMS: 2 s at 50 Hz, fast against a change of "
+        "vibration (throttle), slow against one spike",
+    )  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)

@@ -206,7 +206,8 @@ class VehicleEstimator:
         self._seed_check_t0_s = None
         self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2)
         self.fdi = FaultDetector(cfg.fdi)
-        self.despike = Despiker(cfg.fdi.despike)
+        spike = cfg.fdi.despike
+        self.despike = Despiker(spike.floor_mps2, spike.k_sigma, spike.tau_samples)
         self.inputs = HeldInputs(cfg.g_mps2)
         self.streams = StreamTiming(cfg.max_gap_s, cfg.fdi.missing_timeout_s)
         self.sel = ActiveSelection(cfg.compensate_accel_bias, cfg.handover_contamination_mps)

@@ -14,9 +14,9 @@ import pytest
 
 from glmav_observer.cli import main
 from glmav_observer.config import ConfigError, parse_config
-from glmav_observer.estimation.despike import DespikeConfig, Despiker
+from glmav_observer.estimation.despike import Despiker
 from glmav_observer.estimation.drift import drift_sigma_ned_mps
-from glmav_observer.estimation.fdi_types import FdiConfig
+from glmav_observer.estimation.fdi_types import DespikeConfig, FdiConfig
 from glmav_observer.estimation.imu_monitor import ImuConsistency, ImuMonitorConfig
 from glmav_observer.estimation.vehicle import VehicleEstimator
 
@@ -109,7 +109,7 @@ def test_an_fdi_imu_key_changes_the_monitor(
 def _spike_held(cfg: DespikeConfig, sigma_mps2: float, n: int, spike_mps2: float) -> bool:
     """After ``n`` IMU samples of white noise σ per axis (seeded), is a sample
     ``spike_mps2`` off gravity on x held out?"""
-    d = Despiker(cfg)
+    d = Despiker(cfg.floor_mps2, cfg.k_sigma, cfg.tau_samples)
     rng = np.random.default_rng(2)
     for _ in range(n):
         x, y, z = rng.normal(0.0, sigma_mps2, 3)
