@@ -32,6 +32,7 @@ from glmav_observer.configurations import (
     config_index,
 )
 from glmav_observer.estimation.bank_core import BankCore
+from glmav_observer.estimation.inputs import HeldInputs
 from glmav_observer.estimation.observer import (
     G_MPS2,
     BoolArray,
@@ -114,12 +115,16 @@ class ObserverBank:
         self.g_mps2 = float(g_mps2)
         self.gamma_gain: tuple[float, ...] = _gammas(gamma_per_config)
         self._gamma_arr = np.array(self.gamma_gain)
-        self._core = BankCore(self.gamma_gain, self.g_mps2)
-        self._masks_last: list[tuple[bool, bool, bool]] = _STANDARD_MASKS
+        self._core = BankCore(self.gamma_gain, self.g_mps2, _STANDARD_LOST)
+        #: the masks of the last step (None: the last step was :meth:`advance`'s, whose
+        #: masks the core's lost axes tell)
+        self._masks_last: list[tuple[bool, bool, bool]] | None = _STANDARD_MASKS
 
     @property
     def last_meas_mask(self) -> BoolArray:
         """(4, 3) bool: the NED axes each configuration used in the last step."""
+        if self._masks_last is None:
+            return np.array([[k != lost for k in range(3)] for lost in self._core.lost()])
         return np.array(self._masks_last, dtype=bool)
 
     @property
@@ -274,6 +279,27 @@ class ObserverBank:
             self._core.step(h, eul, w, f, y, [_lost_index(m) for m in masks])
         else:
             self._step_numpy(h, eul, w, f, y, masks)
+
+    def advance(  # noqa: PLR0917 -- the held inputs and what the supervisor decided
+        self,
+        t: float,
+        dt: float,
+        inputs: HeldInputs,
+        bias_body_mps2: Sequence[float],
+        propagate: bool,
+        b_obs: Sequence[float] | None,
+        use: Sequence[bool],
+    ) -> bool:
+        """The per-sample step in one compiled call (:meth:`BankCore.advance`): every
+        configuration over ``dt`` from the held inputs, then their IMU integrals. False
+        (nothing changed) where :meth:`step_floats` must step instead (the small-angle
+        E, a configuration with fewer than two measured axes, a non-finite input)."""
+        if self.e_form != "exact":
+            return False
+        if self._core.advance(t, dt, inputs, bias_body_mps2, propagate, b_obs, use):
+            self._masks_last = None
+            return True
+        return False
 
     def _step_numpy(  # noqa: PLR0917 -- the inputs of one step, in the API order
         self,

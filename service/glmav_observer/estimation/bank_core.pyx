@@ -12,8 +12,9 @@ Every sum is the former plain-float code's, in its order (setup.py: no fused
 multiply-add), so the golden replays did not change.
 """
 
-from libc.math cimport exp, expm1
+from libc.math cimport exp, expm1, isfinite
 
+from glmav_observer.estimation.inputs cimport HeldInputs
 from glmav_observer.rotation cimport e_flat_c, rotate_c
 
 #: Below this |γ·Δt| the φ-functions use their Taylor series (no cancellation); 9 terms:
@@ -54,10 +55,17 @@ cdef class BankCore:
     cdef double cache_h[TERMS_CACHE]
     cdef double cache_terms[TERMS_CACHE][4][3]
     cdef int n_cached, next_slot
+    # each configuration's own lost axis (−1: none; configurations.CONFIGURATIONS)
+    cdef int config_lost[4]
+    # the lost axis each configuration had in the last fused step (advance)
+    cdef int last_lost[4]
 
-    def __init__(self, gammas, double g_mps2):
+    def __init__(self, gammas, double g_mps2, config_lost=(-1, 0, 1, 2)):
         cdef int i, k
         self.g_mps2 = g_mps2
+        for i in range(4):
+            self.config_lost[i] = config_lost[i]
+            self.last_lost[i] = config_lost[i]
         self.set_gammas(gammas)
         for i in range(4):
             for k in range(3):
@@ -123,7 +131,68 @@ cdef class BankCore:
         """E from ZYX Euler angles (13)."""
         e_flat_c(phi_rad, theta_rad, psi_rad, self.E)
 
+    def lost(self):
+        """The unmeasured axis of each configuration in the last :meth:`advance` (−1: none)."""
+        return [self.last_lost[0], self.last_lost[1], self.last_lost[2], self.last_lost[3]]
+
     # ------------------------------------------------------------------ the step
+    def advance(self, double t, double dt, HeldInputs inputs, bias_body_mps2, bint propagate,
+                b_obs, use):
+        """One step of the per-sample path from the held inputs, and their integrals.
+
+        Every configuration over ``dt`` s with the held attitude, body rates (the IMU's,
+        else ATTITUDE's), specific force minus ``b_obs`` (the bank's bias, None: none) and
+        the held measurement (propagated with ``bias_body_mps2`` when ``propagate``:
+        :meth:`HeldInputs.y_for_step`), axes allowed by ``use`` (three bools) and finite;
+        then the IMU integrals over the step (:meth:`HeldInputs.integrate`).
+        False, with nothing changed, where the numpy path must step instead
+        (:meth:`ObserverBank.step_floats`): a configuration with fewer than two measured
+        axes, a non-finite input or a negative ``dt``."""
+        cdef double eul[3]
+        cdef double w[3]
+        cdef double f[3]
+        cdef double fb[3]
+        cdef double y[3]
+        cdef double b[3]
+        cdef bint ok[3]
+        cdef int lost[4]
+        cdef int i, k, n, l_
+        eul[0], eul[1], eul[2] = inputs.euler_rad
+        om = inputs.omega_imu_radps
+        w[0], w[1], w[2] = om if om is not None else inputs.omega_att_radps
+        f[0], f[1], f[2] = inputs.f_body_mps2
+        if b_obs is None:
+            fb[0], fb[1], fb[2] = f[0], f[1], f[2]
+        else:
+            fb[0], fb[1], fb[2] = b_obs
+            fb[0] = f[0] - fb[0]
+            fb[1] = f[1] - fb[1]
+            fb[2] = f[2] - fb[2]
+        if not isfinite(dt + eul[0] + eul[1] + eul[2] + w[0] + w[1] + w[2] + fb[0] + fb[1]
+                        + fb[2]) or dt < 0.0:
+            return False
+        b[0], b[1], b[2] = bias_body_mps2
+        inputs.y_for_step_c(b, propagate, y)
+        ok[0], ok[1], ok[2] = use
+        for k in range(3):
+            ok[k] = ok[k] and isfinite(y[k])
+        for i in range(4):
+            n = 0
+            l_ = -1
+            for k in range(3):
+                if k != self.config_lost[i] and ok[k]:
+                    n += 1
+                else:
+                    l_ = k
+            if n < 2:
+                return False
+            lost[i] = l_ if n == 2 else -1
+        self.step_c(dt, eul, w, fb, y, lost)
+        for i in range(4):
+            self.last_lost[i] = lost[i]
+        inputs.integrate_c(t, dt, self.E, f)
+        return True
+
     cdef double* _terms(self, double h) noexcept:
         cdef int i, s
         cdef double xg, p1, p2
