@@ -37,6 +37,7 @@ MODULES: tuple[str, ...] = (
     "bench_rerun",
     "accuracy",
     "corpus",
+    "down_floor",
     "faults_accuracy",
     "aero",
     "fuzz_ingest",
