@@ -37,8 +37,9 @@ TLOG_NEEDS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 _NEED_OF: dict[str, int] = {name: k for k, (_, names) in enumerate(TLOG_NEEDS) for name in names}
 _ALL = frozenset(range(len(TLOG_NEEDS)))
-#: Decoded frames the scan keeps for the replay (about 1 kB each: at most ~0.5 GB)
-MAX_PREFIX_RECORDS = 500_000
+#: Decoded frames the scan keeps for the replay: 1.5 kB each (measured on an ArduPilot
+#: tlog), at most 150 MB: 10 times the longest prefix in tests/data (10,023 frames)
+MAX_PREFIX_RECORDS = 100_000
 
 
 @dataclass
