@@ -21,8 +21,7 @@ from glmav_sitl.dynamics.frames import euler_from_quat, rotate_body_to_ned
 from glmav_sitl.dynamics.model import (
     ModelOptions,
     initial_state,
-    make_derivative,
-    make_stepper,
+    make_rhs,
     trim_rotor_speeds,
 )
 from glmav_sitl.params import VehicleParams, load_vehicle_params
@@ -88,8 +87,9 @@ class Simulator:
         ctl_us = round(1e6 / self.sitl.control_rate_hz)
         self.control_every = max(1, round(ctl_us / self.dt_us))  # steps per control tick
         self.model_options = model_options or ModelOptions()
-        self._f = make_derivative(self.params, self.model_options)
-        self._step = make_stepper(self.params, self.model_options)
+        self._rhs = make_rhs(self.params, self.model_options)
+        self._f = self._rhs.f
+        self._step = self._rhs.step
         trim = trim_rotor_speeds(self.params, self.model_options)
         self.trim_rotor_radps = trim
         rotor0 = sc.rotor_radps if sc.rotor_radps is not None else trim
