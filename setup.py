@@ -22,6 +22,7 @@ MODULES = [
     ("glmav_observer.estimation.bank_core", "service/glmav_observer/estimation/bank_core.pyx"),
     ("glmav_observer.estimation.imu_window", "service/glmav_observer/estimation/imu_window.pyx"),
     ("glmav_sitl.dynamics.rhs", "sim_bridge/glmav_sitl/dynamics/rhs.pyx"),
+    ("glmav_sitl.control.controller", "sim_bridge/glmav_sitl/control/controller.pyx"),
 ]
 
 #: -O2 without floating-point contraction: the C code rounds each operation as Python
