@@ -61,6 +61,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from glmav_sitl.gcs import telemetry
 from glmav_sitl.gcs.autopilot import Autopilot, Mode
 from glmav_sitl.gcs.params import ParamError, ParamTable, default_params
+from glmav_sitl.mavlink.frame import frame_v2
 from glmav_sitl.mavlink.links import Link
 from glmav_sitl.mavlink.servo import servo_pwm_us
 from glmav_sitl.scenario import STREAM_IDS
@@ -227,6 +228,25 @@ class MavlinkVehicle:
             self.mav.signing.timestamp = max(self.mav.signing.timestamp, ts)
         self.mav.send(msg)
 
+    def _send_fields(self, cls: Any, fields: tuple[Any, ...]) -> None:
+        """Send a message of pymavlink class ``cls`` from all its ``fields`` (extensions
+        included) in its wire order, which for the stream messages sent this way is their
+        declared order: framed by :func:`.frame.frame_v2` (bytes as pymavlink's, one
+        sequence number with it), or through pymavlink when signing."""
+        if self.signing_key is not None:
+            self._send(cls(*fields))
+            return
+        mav = self.mav
+        seq = mav.seq
+        buf = frame_v2(
+            cls.unpacker.pack(*fields), cls.id, cls.crc_extra, seq, mav.srcSystem, mav.srcComponent
+        )
+        mav.seq = (seq + 1) % 256
+        mav.total_packets_sent += 1
+        mav.total_bytes_sent += len(buf)
+        self.out.stamp_us = self.start_unix_us + self.sim.t_us
+        self.out.write(buf)
+
     def poll_streams(self) -> None:
         """Emit every stream that is due at the simulator's current time."""
         t_us = self.sim.t_us
@@ -284,60 +304,60 @@ class MavlinkVehicle:
         elif name in ("raw_imu", "scaled_imu", "highres_imu"):
             gyro, acc = sim.imu.sample(tr.t_s, tr.omega_body_radps, self._specific_force(tr), rate)
             if name == "highres_imu":
-                msg = mavlink2.MAVLink_highres_imu_message(
-                    t_us,
-                    acc[0],
-                    acc[1],
-                    acc[2],
-                    gyro[0],
-                    gyro[1],
-                    gyro[2],
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0x3F,
+                self._send_fields(
+                    mavlink2.MAVLink_highres_imu_message,
+                    (t_us, *acc, *gyro, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0x3F, 0),
                 )
             elif name == "raw_imu":
                 c = sim.sensor_config.imu
                 ka, kg = 1.0 / c.raw_accel_lsb_mps2, 1.0 / c.raw_gyro_lsb_radps
-                msg = mavlink2.MAVLink_raw_imu_message(
-                    t_us,
-                    _i16(acc[0] * ka),
-                    _i16(acc[1] * ka),
-                    _i16(acc[2] * ka),
-                    _i16(gyro[0] * kg),
-                    _i16(gyro[1] * kg),
-                    _i16(gyro[2] * kg),
-                    0,
-                    0,
-                    0,
+                self._send_fields(
+                    mavlink2.MAVLink_raw_imu_message,
+                    (
+                        t_us,
+                        _i16(acc[0] * ka),
+                        _i16(acc[1] * ka),
+                        _i16(acc[2] * ka),
+                        _i16(gyro[0] * kg),
+                        _i16(gyro[1] * kg),
+                        _i16(gyro[2] * kg),
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                    ),
                 )
             else:
                 ka = 1000.0 / 9.80665  # mG
-                msg = mavlink2.MAVLink_scaled_imu_message(
-                    t_ms,
-                    _i16(acc[0] * ka),
-                    _i16(acc[1] * ka),
-                    _i16(acc[2] * ka),
-                    _i16(gyro[0] * 1000.0),
-                    _i16(gyro[1] * 1000.0),
-                    _i16(gyro[2] * 1000.0),
-                    0,
-                    0,
-                    0,
+                self._send_fields(
+                    mavlink2.MAVLink_scaled_imu_message,
+                    (
+                        t_ms,
+                        _i16(acc[0] * ka),
+                        _i16(acc[1] * ka),
+                        _i16(acc[2] * ka),
+                        _i16(gyro[0] * 1000.0),
+                        _i16(gyro[1] * 1000.0),
+                        _i16(gyro[2] * 1000.0),
+                        0,
+                        0,
+                        0,
+                        0,
+                    ),
                 )
+            self.stats.sent[name] += 1
+            return
         elif name == "attitude":
             eul, w = sim.attitude_sensor.sample(tr.euler_rad, tr.omega_body_radps, rate)
-            msg = mavlink2.MAVLink_attitude_message(t_ms, eul[0], eul[1], eul[2], w[0], w[1], w[2])
+            self._send_fields(mavlink2.MAVLink_attitude_message, (t_ms, *eul, *w))
+            self.stats.sent[name] += 1
+            return
         elif name == "local_position_ned":
             pos, vel = sim.position_sensor.sample(tr.t_s, tr.p_ned_m, tr.v_ned_mps)
-            msg = mavlink2.MAVLink_local_position_ned_message(
-                t_ms, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2]
-            )
+            self._send_fields(mavlink2.MAVLink_local_position_ned_message, (t_ms, *pos, *vel))
+            self.stats.sent[name] += 1
+            return
         elif name == "servo_output_raw":
             pwm = servo_pwm_us(sim.u, sim.params)  # the command: glmav_sitl.mavlink.servo
             msg = mavlink2.MAVLink_servo_output_raw_message(
@@ -355,31 +375,25 @@ class MavlinkVehicle:
             v = tr.v_ned_mps
             sc = sim.sensor_config
             k = sc.noise_scale if sc.noise else 0.0
-            msg = mavlink2.MAVLink_sim_state_message(
-                q[0],
-                q[1],
-                q[2],
-                q[3],
-                e[0],
-                e[1],
-                e[2],
-                f[0],
-                f[1],
-                f[2],
-                w[0],
-                w[1],
-                w[2],
-                lat,
-                lon,
-                self._alt0 - tr.p_ned_m[2],
-                sc.position_sigma_m * k,
-                sc.position_sigma_m * k,
-                v[0],
-                v[1],
-                v[2],
-                round(lat * 1e7),
-                round(lon * 1e7),
+            self._send_fields(
+                mavlink2.MAVLink_sim_state_message,
+                (
+                    *q,
+                    *e,
+                    *f,
+                    *w,
+                    lat,
+                    lon,
+                    self._alt0 - tr.p_ned_m[2],
+                    sc.position_sigma_m * k,
+                    sc.position_sigma_m * k,
+                    *v,
+                    round(lat * 1e7),
+                    round(lon * 1e7),
+                ),
             )
+            self.stats.sent[name] += 1
+            return
         elif name in telemetry.GCS_STREAMS and self.autopilot is not None:
             msg = telemetry.message(name, sim, tr, self.autopilot)
         else:
