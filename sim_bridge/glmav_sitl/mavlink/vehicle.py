@@ -267,6 +267,12 @@ class MavlinkVehicle:
             nxt = min(nxt, due)
         self._next_any_us = nxt
 
+    @property
+    def next_stream_us(self) -> int:
+        """When :meth:`poll_streams` next has something to send (sim time, us; at or
+        before now: at the next poll)."""
+        return self._next_any_us
+
     def set_interval(self, name: str, interval_us: int) -> None:
         self.interval_us[name] = interval_us
         self.next_due_us[name] = self.sim.t_us
