@@ -61,7 +61,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from glmav_sitl.gcs import telemetry
 from glmav_sitl.gcs.autopilot import Autopilot, Mode
 from glmav_sitl.gcs.params import ParamError, ParamTable, default_params
-from glmav_sitl.mavlink.frame import frame_v2
+from glmav_sitl.mavlink.frame import StreamWriter
 from glmav_sitl.mavlink.links import Link
 from glmav_sitl.mavlink.servo import servo_pwm_us
 from glmav_sitl.scenario import STREAM_IDS
@@ -78,14 +78,6 @@ CMD_REQUEST_MESSAGE = 512
 CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
 _MAVLINK_EPOCH_UNIX_S = 1420070400  # 2015-01-01, origin of signing timestamps
 _EARTH_RADIUS_M = 6378137.0
-_I16 = 32767
-
-
-def _i16(x: float) -> int:
-    if not math.isfinite(x):
-        return 0
-    v = round(x)
-    return -_I16 if v < -_I16 else (_I16 if v > _I16 else v)
 
 
 @dataclass
@@ -163,6 +155,8 @@ class MavlinkVehicle:
         self.start_unix_us = round(sim.sitl.start_unix_s * 1e6)
         self.out = _Fanout(links, tlog)
         self.mav = mavlink2.MAVLink(self.out, srcSystem=sysid, srcComponent=compid)
+        #: the sensor streams' packets, packed and framed in C (one sequence with mav)
+        self.streams = StreamWriter(self.mav, links, tlog)
         self.signing_key = signing_key
         if signing_key is not None:
             if len(signing_key) != 32:
@@ -220,32 +214,20 @@ class MavlinkVehicle:
         return 0 if rate_hz <= 0.0 else max(1, round(1e6 / rate_hz))
 
     # ------------------------------------------------------------------ output
-    def _send(self, msg: Any) -> None:
+    def _stamp(self) -> int:
+        """The tlog stamp of a packet sent now (us); with signing, the signing clock
+        brought up to the sim clock."""
         t_us = self.sim.t_us
-        self.out.stamp_us = self.start_unix_us + t_us
+        stamp_us: int = self.start_unix_us + t_us
+        self.out.stamp_us = stamp_us
         if self.signing_key is not None:
             ts = (self.start_unix_us // 1_000_000 - _MAVLINK_EPOCH_UNIX_S) * 100_000 + t_us // 10
             self.mav.signing.timestamp = max(self.mav.signing.timestamp, ts)
-        self.mav.send(msg)
+        return stamp_us
 
-    def _send_fields(self, cls: Any, fields: tuple[Any, ...]) -> None:
-        """Send a message of pymavlink class ``cls`` from all its ``fields`` (extensions
-        included) in its wire order, which for the stream messages sent this way is their
-        declared order: framed by :func:`.frame.frame_v2` (bytes as pymavlink's, one
-        sequence number with it), or through pymavlink when signing."""
-        if self.signing_key is not None:
-            self._send(cls(*fields))
-            return
-        mav = self.mav
-        seq = mav.seq
-        buf = frame_v2(
-            cls.unpacker.pack(*fields), cls.id, cls.crc_extra, seq, mav.srcSystem, mav.srcComponent
-        )
-        mav.seq = (seq + 1) % 256
-        mav.total_packets_sent += 1
-        mav.total_bytes_sent += len(buf)
-        self.out.stamp_us = self.start_unix_us + self.sim.t_us
-        self.out.write(buf)
+    def _send(self, msg: Any) -> None:
+        self._stamp()
+        self.mav.send(msg)
 
     def poll_streams(self) -> None:
         """Emit every stream that is due at the simulator's current time."""
@@ -310,58 +292,23 @@ class MavlinkVehicle:
         elif name in ("raw_imu", "scaled_imu", "highres_imu"):
             gyro, acc = sim.imu.sample(tr.t_s, tr.omega_body_radps, self._specific_force(tr), rate)
             if name == "highres_imu":
-                self._send_fields(
-                    mavlink2.MAVLink_highres_imu_message,
-                    (t_us, *acc, *gyro, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0x3F, 0),
-                )
+                self.streams.highres_imu(self._stamp(), t_us, gyro, acc)
             elif name == "raw_imu":
                 c = sim.sensor_config.imu
                 ka, kg = 1.0 / c.raw_accel_lsb_mps2, 1.0 / c.raw_gyro_lsb_radps
-                self._send_fields(
-                    mavlink2.MAVLink_raw_imu_message,
-                    (
-                        t_us,
-                        _i16(acc[0] * ka),
-                        _i16(acc[1] * ka),
-                        _i16(acc[2] * ka),
-                        _i16(gyro[0] * kg),
-                        _i16(gyro[1] * kg),
-                        _i16(gyro[2] * kg),
-                        0,
-                        0,
-                        0,
-                        0,
-                        0,
-                    ),
-                )
+                self.streams.raw_imu(self._stamp(), t_us, gyro, acc, ka, kg)
             else:
-                ka = 1000.0 / 9.80665  # mG
-                self._send_fields(
-                    mavlink2.MAVLink_scaled_imu_message,
-                    (
-                        t_ms,
-                        _i16(acc[0] * ka),
-                        _i16(acc[1] * ka),
-                        _i16(acc[2] * ka),
-                        _i16(gyro[0] * 1000.0),
-                        _i16(gyro[1] * 1000.0),
-                        _i16(gyro[2] * 1000.0),
-                        0,
-                        0,
-                        0,
-                        0,
-                    ),
-                )
+                self.streams.scaled_imu(self._stamp(), t_ms, gyro, acc)
             self.stats.sent[name] += 1
             return
         elif name == "attitude":
             eul, w = sim.attitude_sensor.sample(tr.euler_rad, tr.omega_body_radps, rate)
-            self._send_fields(mavlink2.MAVLink_attitude_message, (t_ms, *eul, *w))
+            self.streams.attitude(self._stamp(), t_ms, eul, w)
             self.stats.sent[name] += 1
             return
         elif name == "local_position_ned":
             pos, vel = sim.position_sensor.sample(tr.t_s, tr.p_ned_m, tr.v_ned_mps)
-            self._send_fields(mavlink2.MAVLink_local_position_ned_message, (t_ms, *pos, *vel))
+            self.streams.local_position_ned(self._stamp(), t_ms, pos, vel)
             self.stats.sent[name] += 1
             return
         elif name == "servo_output_raw":
@@ -381,8 +328,8 @@ class MavlinkVehicle:
             v = tr.v_ned_mps
             sc = sim.sensor_config
             k = sc.noise_scale if sc.noise else 0.0
-            self._send_fields(
-                mavlink2.MAVLink_sim_state_message,
+            self.streams.sim_state(
+                self._stamp(),
                 (
                     *q,
                     *e,
@@ -394,9 +341,9 @@ class MavlinkVehicle:
                     sc.position_sigma_m * k,
                     sc.position_sigma_m * k,
                     *v,
-                    round(lat * 1e7),
-                    round(lon * 1e7),
                 ),
+                round(lat * 1e7),
+                round(lon * 1e7),
             )
             self.stats.sent[name] += 1
             return

@@ -1,9 +1,10 @@
-"""The compiled MAVLink 2 framing of the simulator's streams gives pymavlink's bytes."""
+"""The compiled packing and framing of the simulator's streams gives pymavlink's bytes."""
 
 from __future__ import annotations
 
 import io
 import itertools
+import math
 import struct
 from pathlib import Path
 from typing import Any
@@ -12,73 +13,126 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from glmav_sitl.mavlink.frame import frame_v2
+from glmav_sitl.mavlink.frame import StreamWriter
+from glmav_sitl.mavlink.frame import i16 as compiled_i16
 from glmav_sitl.runner import run
 
-#: the messages framed by frame_v2 (vehicle.MavlinkVehicle._send_fields), with a random
-#: value for each field (in declared order = wire order for these)
-STREAMS: list[Any] = [
-    mavlink2.MAVLink_raw_imu_message,
-    mavlink2.MAVLink_scaled_imu_message,
-    mavlink2.MAVLink_highres_imu_message,
-    mavlink2.MAVLink_attitude_message,
-    mavlink2.MAVLink_local_position_ned_message,
-    mavlink2.MAVLink_sim_state_message,
-]
-_INT = {"Q": (0, 2**63), "I": (0, 2**32), "i": (-(2**31), 2**31), "h": (-(2**15), 2**15)}
-_INT |= {"H": (0, 2**16), "B": (0, 2**8)}
+KEY = bytes(range(32))
 
 
-def _random_fields(cls: Any, rng: np.random.Generator, zero_tail: bool) -> tuple[Any, ...]:
-    fmt = bytes(cls.native_format).decode()[1:]
-    assert cls.fieldnames == cls.ordered_fieldnames  # what _send_fields relies on
-    out: list[Any] = []
-    for i, c in enumerate(fmt):
-        if zero_tail and i >= len(fmt) // 2:
-            out.append(0.0 if c == "f" else 0)
-        elif c == "f":
-            out.append(float(rng.normal(0.0, 100.0)))
-        else:
-            lo, hi = _INT[c]
-            out.append(int(rng.integers(lo, hi)))
-    return tuple(out)
+class _Link:
+    """What the writer writes to (a Link's write)."""
+
+    def __init__(self) -> None:
+        self.out: list[bytes] = []
+
+    def write(self, buf: bytes) -> None:
+        self.out.append(bytes(buf))
 
 
-def _pymavlink_bytes(msg: Any, seq: int, sysid: int, compid: int) -> bytes:
-    buf = io.BytesIO()
-    mav = mavlink2.MAVLink(buf, srcSystem=sysid, srcComponent=compid)
+def _encoder(sysid: int, compid: int, seq: int, signed: bool) -> Any:
+    mav = mavlink2.MAVLink(io.BytesIO(), srcSystem=sysid, srcComponent=compid)
     mav.seq = seq
-    mav.send(msg)
-    return buf.getvalue()
+    if signed:
+        mav.signing.secret_key = KEY
+        mav.signing.link_id = 3
+        mav.signing.sign_outgoing = True
+        mav.signing.timestamp = 123_456_789
+    return mav
 
 
-@pytest.mark.parametrize("cls", STREAMS, ids=lambda c: c.msgname)
-def test_frame_v2_equals_pymavlink(cls: Any) -> None:
-    """Random fields, sequence numbers, system and component ids; half the cases with
-    a zero tail, which MAVLink 2 truncates (pymavlink and frame_v2 alike)."""
-    rng = np.random.default_rng(cls.id)
-    for k in range(200):
-        fields = _random_fields(cls, rng, zero_tail=k % 2 == 1)
-        seq, sysid, compid = (int(v) for v in rng.integers(0, 256, 3))
-        want = _pymavlink_bytes(cls(*fields), seq, sysid, compid)
-        got = frame_v2(cls.unpacker.pack(*fields), cls.id, cls.crc_extra, seq, sysid, compid)
-        assert got == want
-    # all-zero payload: one byte is kept
-    zeros = tuple(0.0 if c == "f" else 0 for c in bytes(cls.native_format).decode()[1:])
-    got = frame_v2(cls.unpacker.pack(*zeros), cls.id, cls.crc_extra, 0, 1, 1)
-    assert got == _pymavlink_bytes(cls(*zeros), 0, 1, 1)
-    assert got[1] == 1
+def i16(x: float) -> int:
+    """The quantiser as the Python code had it (the oracle of frame.i16)."""
+    if not math.isfinite(x):
+        return 0
+    v = round(x)
+    return max(-32767, min(32767, v))
 
 
-def test_frame_v2_rejects_what_does_not_fit() -> None:
-    with pytest.raises(ValueError, match="at most 255"):
-        frame_v2(b"\x01" * 256, 30, 39, 0, 1, 1)
-    with pytest.raises(ValueError, match="24 bits"):
-        frame_v2(b"\x01", 1 << 24, 39, 0, 1, 1)
+def _f(rng: np.random.Generator, n: int, zero: bool) -> list[float]:
+    return [0.0] * n if zero else [float(v) for v in rng.normal(0.0, 30.0, n)]
+
+
+def _cases(rng: np.random.Generator, zero: bool) -> list[tuple[str, tuple[Any, ...], Any]]:
+    """(writer method, its arguments after the stamp, pymavlink's message of them)."""
+    t_us = 0 if zero else int(rng.integers(0, 2**40))
+    t_ms = 0 if zero else int(rng.integers(0, 2**32))
+    g, a = _f(rng, 3, zero), _f(rng, 3, zero)
+    ka, kg = 1.0 / 9.80665e-3, 1.0 / 1e-3
+    mg = 1000.0 / 9.80665
+    s = _f(rng, 21, zero)
+    lat_i, lon_i = (0, 0) if zero else (int(v) for v in rng.integers(-(2**31), 2**31, 2))
+    return [
+        (
+            "highres_imu",
+            (t_us, g, a),
+            mavlink2.MAVLink_highres_imu_message(t_us, *a, *g, *[0.0] * 7, 0x3F),
+        ),
+        (
+            "raw_imu",
+            (t_us, g, a, ka, kg),
+            mavlink2.MAVLink_raw_imu_message(
+                t_us, *(i16(v * ka) for v in a), *(i16(v * kg) for v in g), 0, 0, 0
+            ),
+        ),
+        (
+            "scaled_imu",
+            (t_ms, g, a),
+            mavlink2.MAVLink_scaled_imu_message(
+                t_ms, *(i16(v * mg) for v in a), *(i16(v * 1000.0) for v in g), 0, 0, 0
+            ),
+        ),
+        ("attitude", (t_ms, g, a), mavlink2.MAVLink_attitude_message(t_ms, *g, *a)),
+        (
+            "local_position_ned",
+            (t_ms, g, a),
+            mavlink2.MAVLink_local_position_ned_message(t_ms, *g, *a),
+        ),
+        ("sim_state", (s, lat_i, lon_i), mavlink2.MAVLink_sim_state_message(*s, lat_i, lon_i)),
+    ]
+
+
+@pytest.mark.parametrize("signed", [False, True], ids=["unsigned", "signed"])
+def test_stream_writer_equals_pymavlink(signed: bool) -> None:
+    """Random values, sequence numbers, system and component ids: the writer's packets,
+    to a link and to the tlog (8-byte big-endian stamp first), are pymavlink's bytes
+    for the same messages; one case in four is all zeros, which MAVLink 2 truncates; with signing, the signature and the signing clock match too."""
+    rng = np.random.default_rng(11)
+    for k in range(150):
+        sysid, compid, seq = (int(v) for v in rng.integers(0, 256, 3))
+        stamp = int(rng.integers(0, 2**62))
+        for method, args, msg in _cases(rng, zero=k % 4 == 0):
+            ref = _encoder(sysid, compid, seq, signed)
+            ref.send(msg)
+            want = ref.file.getvalue()
+            mav = _encoder(sysid, compid, seq, signed)
+            link, tlog = _Link(), io.BytesIO()
+            getattr(StreamWriter(mav, [link], tlog), method)(stamp, *args)
+            assert link.out == [want], method
+            assert tlog.getvalue() == struct.pack(">Q", stamp) + want
+            assert mav.seq == (seq + 1) % 256
+            assert mav.signing.timestamp == ref.signing.timestamp
+            if k % 4 == 0:  # the zero tail is cut (HIGHRES_IMU keeps fields_updated)
+                assert want[1] == (61 if method == "highres_imu" else 1)
+
+
+def test_the_quantiser_rounds_half_to_even_and_saturates() -> None:
+    rng = np.random.default_rng(3)
+    xs = [float(v) for v in rng.normal(0.0, 2e4, 2000)]
+    xs += [0.5, 1.5, 2.5, -0.5, -2.5, 32766.5, -32767.5, 4e4, math.inf, -math.inf, 1e300]
+    for x in xs:
+        assert compiled_i16(x) == i16(x)
+    assert compiled_i16(math.nan) == 0
+
+
+def test_sim_state_wants_its_21_floats() -> None:
+    w = StreamWriter(_encoder(1, 1, 0, False), [], None)
+    with pytest.raises(ValueError, match="21 floats"):
+        w.sim_state(0, [0.0] * 20, 0, 0)
 
 
 def test_a_flight_tlog_decodes_with_one_sequence(tmp_path: Path) -> None:
-    """2 s of the cruise flight to a tlog: every packet (streams framed by frame_v2,
+    """2 s of the cruise flight to a tlog: every packet (streams by StreamWriter,
     heartbeat and servo outputs by pymavlink) passes pymavlink's CRC check, and the
     sequence numbers run on by one across both paths."""
     tlog = tmp_path / "f.tlog"
