@@ -45,3 +45,31 @@ class PositionVelocitySensor:
     def set_velocity_sigma_mps(self, sigma_mps: float) -> None: ...
     def set_faults(self, faults: tuple[Fault, ...]) -> None: ...
     def sample(self, t_s: float, p_ned_m: Vec3, v_ned_mps: Vec3) -> tuple[Vec3, Vec3]: ...
+
+class FastImu:
+    gyro_radps: Vec3
+    accel_mps2: Vec3
+    def __init__(
+        self,
+        imu: ImuModel,
+        g_mps2: float,
+        interval_us: int,
+        v0_ned_mps: Vec3,
+        trim2: tuple[float, float],
+        vib: list[list[tuple[float, tuple[float, ...], tuple[float, ...]]]],
+        vib_on: bool,
+        accel0_mps2: Vec3,
+    ) -> None: ...
+    def sample(
+        self,
+        t_us: int,
+        qw: float,
+        qx: float,
+        qy: float,
+        qz: float,
+        v_ned: Vec3,
+        omega: Vec3,
+        w1: float,
+        w2: float,
+    ) -> None: ...
+    def take_sums(self) -> tuple[list[float], int]: ...

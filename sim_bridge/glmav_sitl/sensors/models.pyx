@@ -24,7 +24,7 @@ samples did not change.
   (dropout -> NaN, freeze -> the value at fault start, bias, noise burst).
 """
 
-from libc.math cimport atan2, cos, sin, sqrt
+from libc.math cimport M_PI, atan2, copysign, cos, fmod, sin, sqrt
 
 import numpy as np
 
@@ -296,3 +296,140 @@ cdef class PositionVelocitySensor:
                     vel[ax] += f.magnitude * float(self._frng.standard_normal())
         self._last_v = list(vel)
         return pos, (vel[0], vel[1], vel[2])
+
+
+cdef enum:
+    MAX_HARMONICS = 16
+
+
+cdef inline double _py_mod(double x, double y) noexcept nogil:
+    """``x % y`` as Python computes it for floats (the result has the sign of ``y``)."""
+    cdef double m = fmod(x, y)
+    if m != 0.0:
+        if (y < 0.0) != (m < 0.0):
+            m += y
+    else:
+        m = copysign(0.0, y)
+    return m
+
+
+cdef class FastImu:
+    """The ``autopilot`` profile's fast IMU (:mod:`glmav_sitl.sensors.autopilot`): each
+    sample, the mean specific force over the IMU period ``R^T ((v_k - v_{k-1}) / T - g
+    e_d)`` and the true rate through :meth:`ImuModel.sample_fast`, plus the rotors'
+    vibration lines; the sums of the samples since the attitude estimator last took
+    them. The operations of the former Python code, in its order.
+
+    ``vib``: per rotor, ``(harmonic, 6 coefficients of sin(h phi), 6 of cos(h phi))``
+    over (accel x, y, z, gyro x, y, z)."""
+
+    cdef ImuModel imu
+    cdef double g, ti, rate_hz
+    cdef double v_prev[3]
+    cdef double phase[2]
+    cdef double trim2[2]
+    cdef bint vib_on
+    cdef int n_terms[2]
+    cdef double harm[2][MAX_HARMONICS]
+    cdef double cs[2][MAX_HARMONICS][6]
+    cdef double cc[2][MAX_HARMONICS][6]
+    cdef double sums[6]
+    cdef int n_sum
+    cdef public tuple gyro_radps
+    cdef public tuple accel_mps2
+
+    def __init__(
+        self, ImuModel imu, double g_mps2, int interval_us, v0_ned_mps, trim2, vib,
+        bint vib_on, accel0_mps2,
+    ):
+        cdef int r, k, i
+        self.imu = imu
+        self.g = g_mps2
+        self.ti = interval_us / 1e6
+        self.rate_hz = 1e6 / interval_us
+        for i in range(3):
+            self.v_prev[i] = v0_ned_mps[i]
+        for r in range(2):
+            self.phase[r] = 0.0
+            self.trim2[r] = trim2[r]
+            if len(vib[r]) > MAX_HARMONICS:
+                raise ValueError(f"at most {MAX_HARMONICS} vibration harmonics")
+            self.n_terms[r] = len(vib[r])
+            for k, (h, c_sin, c_cos) in enumerate(vib[r]):
+                self.harm[r][k] = h
+                for i in range(6):
+                    self.cs[r][k][i] = c_sin[i]
+                    self.cc[r][k][i] = c_cos[i]
+        self.vib_on = vib_on
+        for i in range(6):
+            self.sums[i] = 0.0
+        self.n_sum = 0
+        self.gyro_radps = (0.0, 0.0, 0.0)
+        self.accel_mps2 = tuple(accel0_mps2)
+
+    def sample(self, long long t_us, double qw, double qx, double qy, double qz, v_ned, omega,
+               double w1, double w2):
+        """One fast sample at ``t_us`` of the state (attitude, NED velocity, body rates,
+        rotor speeds); kept in ``gyro_radps``, ``accel_mps2`` and the sums."""
+        cdef double ti = self.ti
+        cdef double v0 = v_ned[0], v1 = v_ned[1], v2 = v_ned[2]
+        cdef double fx = (v0 - self.v_prev[0]) / ti
+        cdef double fy = (v1 - self.v_prev[1]) / ti
+        cdef double fz = (v2 - self.v_prev[2]) / ti - self.g
+        self.v_prev[0] = v0
+        self.v_prev[1] = v1
+        self.v_prev[2] = v2
+        # R(q)^T f, the operations of frames.rotate_ned_to_body
+        f_body = (
+            (1 - 2 * (qy * qy + qz * qz)) * fx
+            + 2 * (qx * qy + qw * qz) * fy
+            + 2 * (qx * qz - qw * qy) * fz,
+            2 * (qx * qy - qw * qz) * fx
+            + (1 - 2 * (qx * qx + qz * qz)) * fy
+            + 2 * (qy * qz + qw * qx) * fz,
+            2 * (qx * qz + qw * qy) * fx
+            + 2 * (qy * qz - qw * qx) * fy
+            + (1 - 2 * (qx * qx + qy * qy)) * fz,
+        )
+        gyro, acc = self.imu.sample_fast(t_us / 1e6, omega, f_body, self.rate_hz)
+        cdef double ax = acc[0], ay = acc[1], az = acc[2]
+        cdef double gx = gyro[0], gy = gyro[1], gz = gyro[2]
+        cdef double w_r, ph, s2, sn, cn
+        cdef double two_pi = 2.0 * M_PI
+        cdef double* a
+        cdef double* b
+        cdef int r, k
+        if self.vib_on:
+            for r in range(2):
+                w_r = w1 if r == 0 else w2
+                ph = _py_mod(self.phase[r] + w_r * ti, two_pi)
+                self.phase[r] = ph
+                s2 = w_r * w_r * self.trim2[r]
+                for k in range(self.n_terms[r]):
+                    sn = sin(self.harm[r][k] * ph) * s2
+                    cn = cos(self.harm[r][k] * ph) * s2
+                    a = self.cs[r][k]
+                    b = self.cc[r][k]
+                    ax += a[0] * sn + b[0] * cn
+                    ay += a[1] * sn + b[1] * cn
+                    az += a[2] * sn + b[2] * cn
+                    gx += a[3] * sn + b[3] * cn
+                    gy += a[4] * sn + b[4] * cn
+                    gz += a[5] * sn + b[5] * cn
+        self.accel_mps2 = (ax, ay, az)
+        self.gyro_radps = (gx, gy, gz)
+        self.sums[0] += ax
+        self.sums[1] += ay
+        self.sums[2] += az
+        self.sums[3] += gx
+        self.sums[4] += gy
+        self.sums[5] += gz
+        self.n_sum += 1
+
+    def take_sums(self):
+        """``(sums of (ax, ay, az, gx, gy, gz), n)`` since the last call; reset them."""
+        out = ([self.sums[i] for i in range(6)], self.n_sum)
+        for i in range(6):
+            self.sums[i] = 0.0
+        self.n_sum = 0
+        return out
