@@ -178,10 +178,13 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
             n = sim.n_steps
             t_us = sim.t_us
             k = poll_every - n % poll_every
-            if on_truth is not None:
-                k = min(k, truth_every - n % truth_every)
-            k = min(k, max(1, -((t_us - vehicle.next_stream_us) // dt_us)))
-            k = min(k, -((t_us - end_us) // dt_us))
+            if on_truth is not None and truth_every - n % truth_every < k:
+                k = truth_every - n % truth_every
+            k_stream = -((t_us - vehicle.next_stream_us) // dt_us)  # ceil(wait / dt)
+            if k_stream < k:
+                k = k_stream if k_stream > 1 else 1
+            k_end = -((t_us - end_us) // dt_us)
+            k = min(k, k_end)
             advance(k)
             poll()
             n = sim.n_steps

@@ -235,17 +235,18 @@ class MavlinkVehicle:
         if t_us < self._next_any_us:
             return
         nxt = 1 << 62
+        interval_us, next_due_us = self.interval_us, self.next_due_us
         for name in self._order:
-            iv = self.interval_us[name]
+            iv = interval_us[name]
             if iv <= 0:
                 continue
-            due = self.next_due_us[name]
+            due = next_due_us[name]
             if t_us >= due:
                 self.emit(name)
                 due += iv
                 if due <= t_us:  # fell behind (rate above the step rate): skip, do not burst
                     due = t_us + iv
-                self.next_due_us[name] = due
+                next_due_us[name] = due
             nxt = min(nxt, due)
         self._next_any_us = nxt
 
