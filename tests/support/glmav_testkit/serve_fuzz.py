@@ -8,6 +8,9 @@ datagram is framed beforehand by the service's own ``FrameDecoder`` (datagram mo
 this process: what the service must count, reason by reason.
 
 A session starts ``serve`` (:class:`glmav_testkit.serve_process.ServeProcess`), sends the
+vehicle's first frames and waits until the service logs it admitted (with workers, the
+one that owns the vehicle may start reading after the other has admitted a storm of
+spoofed ids: the vehicle would then wait ``evict_idle_s`` for a slot), then sends the
 plan with the valid frames paced at the vehicle's rate (its own clock: the simulator's
 frames per simulated second) and the queues bounded (:class:`PacedSender`: no kernel
 drop unless the service stops reading), waits until the port is read, checks the process
@@ -116,7 +119,11 @@ def out_series(path: Path, sysid: int = VEHICLE_SYSID, config: str = "full") -> 
             if f'"sysid":{sysid},' not in line and f'"sysid":{sysid}}}' not in line:
                 continue
             r = json.loads(line)
-            if (r.get("schema"), r["sysid"], r["config"]) == ("glmav.velocity/1", sysid, config):
+            if (r.get("schema"), r.get("sysid"), r.get("config")) == (
+                "glmav.velocity/1",
+                sysid,
+                config,
+            ):
                 v = (r["v_ned_mps_n"], r["v_ned_mps_e"], r["v_ned_mps_d"])
                 rows.append((r["t_boot_s"], v))
     return rows
@@ -157,16 +164,21 @@ def run_session(
         sp.wait_ready()
         rate = len(plan.valid_at) / plan.vehicle_s  # valid frames per vehicle second
         valid = set(plan.valid_at)
+        first_case = plan.valid_at[min(WARMUP_FRAMES, len(plan.valid_at) - 1)]
         k = 0
-        t0 = time.monotonic()
+        t0 = t_start = time.monotonic()
         for i, d in enumerate(plan.datagrams):
+            if i == first_case:  # the damage starts once the vehicle is admitted
+                t_wait = time.monotonic()
+                sp.wait_log(f"new vehicle (sysid={VEHICLE_SYSID}, ")
+                t0 += time.monotonic() - t_wait
             if i in valid:
                 sender.pace(t0 + k / rate)
                 k += 1
             sender.send(d)
         wait_drained(port, timeout_s=300.0)
         time.sleep(0.3)  # the last datagram read is being estimated and written
-        wall = time.monotonic() - t0
+        wall = time.monotonic() - t_start
         drops = udp_queue(port)[1]
         alive = sp.alive()
         procs = sp.sample()

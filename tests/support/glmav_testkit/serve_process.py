@@ -175,6 +175,14 @@ class ServeProcess:
                 raise AssertionError(f"serve: workers not running ({self.proc.poll()})")
             time.sleep(0.05)
 
+    def wait_log(self, text: str, timeout_s: float = 120.0) -> None:
+        """Until ``text`` is in serve's log (stderr), or raise."""
+        deadline = time.monotonic() + timeout_s
+        while text not in self.stderr_path.read_text(encoding="utf-8", errors="replace"):
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                raise AssertionError(f"serve: no {text!r} in its log ({self.proc.poll()})")
+            time.sleep(0.05)
+
     def alive(self) -> bool:
         return self.proc.poll() is None
 
