@@ -55,7 +55,8 @@ residual exceeds 5σ is not learnt (a GPS glitch) unless 25 come in a row.
 
 **Its own tests.** Per body row (:meth:`DragModel.trusted_rows`): enough data (effective
 sample count), enough excitation (spread of the body-frame speed r_j·v ≥ 0.3 m/s), a
-residual spread small enough to be useful (σ_f,j ≤ 0.15 m/s²) and k_j clearly positive
+residual spread below ``sigma_f_max_mps2`` (off by default since issue 32: σ_f sets the
+pseudo-measurement's σ, which the aided filter weighs) and k_j clearly positive
 (k_j ≥ 5σ(k_j)); only passing rows are used. Both rows refuse themselves while the
 model is *changing*: more than 5 samples (exponentially weighted over 5 s) that a model
 which had passed these tests could not explain at 5σ (a wind change, a payload; on
@@ -71,7 +72,9 @@ agree within 3σ; if they disagree in > 20 % of recent calls the model is
 
 **Pseudo-measurement** (:meth:`DragModel.pseudo_measurement`): with the two measured earth
 axes known, each passing body row (A1) gives s_j (the root of the quadratic on the sign
-branch of the linear solution) and so the lost axis L:
+branch of the linear solution; where a fitted q_j < 0 leaves the drag non-monotone there,
+k_j + 2q_j|s_j| ≤ 0, the linear part's s_j = a_j/k_j: ``quadratic_fallback_linear``) and
+so the lost axis L:
 
     v_L,j = (s_j − Σ_{i≠L} r_j,i v_i) / r_j,L
 
@@ -80,7 +83,9 @@ the two rows are combined by inverse-variance weighting. None when no row passes
 is not observable at this attitude (|r_j,L| < ``row_min``: a level vehicle cannot see d
 through horizontal drag), the axis is not in ``aided_axes`` (d is not, by default: the
 benchmark's numbers in ``docs/benchmarks/aero.md``), its validation has not passed, or σ
-exceeds ``sigma_max_mps``.
+exceeds ``sigma_max_mps`` (the aided filter passes ``AidedAxisConfig.pm_sigma_max_mps``,
+∞ by default: in a hover in gusts each pseudo-measurement's σ is 2-4 m/s, their average
+what the floor shows useful).
 
 The lost axis's filter and the calls from the estimator: the package docstring
 (:mod:`glmav_observer.estimation.aero`) and :mod:`.aided`.
