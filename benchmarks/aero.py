@@ -678,7 +678,9 @@ def run(quick: bool = False) -> dict[str, Any]:
     # issue 32: every loss of the sets beside its floor (held-out: reported, never tuned on)
     held_rows = [c for fl in heldout for c in run_flight(fl)]
     judged = [
-        c | {"set": set_of(fl)} | floor_of_case(fl, c, HORIZON_S, sidecar_dir_of(fl))
+        {k: v for k, v in c.items() if not k.startswith("curve_")}  # the rows keep those
+        | {"set": set_of(fl)}
+        | floor_of_case(fl, c, HORIZON_S, sidecar_dir_of(fl))
         for fl in flights + heldout
         if set_of(fl)
         for c in rows + held_rows
