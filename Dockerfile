@@ -26,20 +26,26 @@ ENV PIP_NO_CACHE_DIR=1 \
 RUN python -m venv /opt/glmav && python -m venv /opt/build
 
 # 1) Dependencies: exactly the pinned runtime closure (binary wheels only: no compiler in
-#    the image), and the project's build backend (pyproject: setuptools>=77) pinned here.
+#    the image), and the project's build backend (pyproject: setuptools>=77, Cython) pinned here.
 #    Own layer, so that source edits do not re-download ~200 MB of wheels.
 COPY constraints.txt /src/constraints.txt
 RUN --mount=type=secret,id=pipconf --mount=type=secret,id=cacert \
     export PIP_CONFIG_FILE=/run/secrets/pipconf; \
     if [ -s /run/secrets/cacert ]; then export PIP_CERT=/run/secrets/cacert; fi; \
     /opt/glmav/bin/pip install --only-binary=:all: -r /src/constraints.txt \
-    && /opt/build/bin/pip install setuptools==84.2.1 wheel==0.48.0
+    && /opt/build/bin/pip install setuptools==84.2.1 wheel==0.48.0 Cython==3.3.1
+
+# The C compiler for the project's compiled core (setup.py: Cython): this stage only; the
+# runtime stage gets the built wheel and has no compiler.
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends gcc libc6-dev \
+    && rm -rf /var/lib/apt/lists/*
 
 RUN /opt/glmav/bin/python -m compileall -q /opt/glmav/lib
 
 # 2) The project's wheel (installed in the final stage, so that a source edit rebuilds a
 #    small layer instead of copying the whole environment again).
-COPY pyproject.toml README.md /src/
+COPY pyproject.toml setup.py MANIFEST.in README.md /src/
 COPY service /src/service
 COPY sim_bridge /src/sim_bridge
 COPY common /src/common

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import RESULTS_DIR, format_goals, machine, write_result
+from benchmarks.common import RESULTS_DIR, format_goals, format_table, machine, write_result
 
 #: In the order of the docs. ``accuracy``, ``fuzz_ingest`` and ``soak`` are the long ones.
 MODULES: tuple[str, ...] = (
@@ -30,10 +30,14 @@ MODULES: tuple[str, ...] = (
     "bench_daemon",
     "bench_fleet",
     "bench_worker",
+    "bench_replay",
+    "bench_memory",
+    "bench_alternatives",
     "bench_zenoh",
     "bench_rerun",
     "accuracy",
     "corpus",
+    "down_floor",
     "faults_accuracy",
     "aero",
     "fuzz_ingest",
@@ -41,6 +45,12 @@ MODULES: tuple[str, ...] = (
 )
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+#: Issue 30's baseline: the same benchmarks run on the pure-Python product (aff7799, a
+#: worktree with its own venv), interleaved with the runs of the compiled core
+#: (``python -m benchmarks.X --label "before (aff7799: pure Python)"`` there, its JSON
+#: copied here). The docs show each goal before and after.
+BEFORE = ("before-aff7799", "before: aff7799, the pure-Python per-sample path")
 
 
 def _load(name: str) -> Any:
@@ -78,7 +88,43 @@ def render(results: dict[str, dict[str, Any]], errors: dict[str, str], command: 
     sections = [
         _section(n, results.get(n), errors.get(n)) for n in MODULES if n in results or n in errors
     ]
+    head += _before_after(results)
     return "\n".join(head) + "\n" + "\n".join(sections)
+
+
+def _before_after(results: dict[str, dict[str, Any]]) -> list[str]:
+    """The goals measured before (:data:`BEFORE`) and after, where both runs exist."""
+    folder, what = BEFORE
+    rows = []
+    for name in MODULES:
+        path = RESULTS_DIR / folder / f"{name}.json"
+        if name not in results or not path.exists():
+            continue
+        before = json.loads(path.read_text(encoding="utf-8"))
+        old = {g["goal"]: g["measured"] for g in before.get("goals", [])}
+        for g in results[name]["goals"]:
+            if g["goal"] in old:
+                b, a = old[g["goal"]], g["measured"]
+                rows.append(
+                    {
+                        "goal": f"{name}: {g['goal']}",
+                        "before": b,
+                        "after": a,
+                        "after / before": a / b if b else float("nan"),
+                        "target": g["target"],
+                    }
+                )
+    if not rows:
+        return []
+    return [
+        "## Before and after the compiled core (issue 30)",
+        "",
+        f"{what}; after: this run's results. The two were run interleaved, module by "
+        "module, on the same machine (its load recorded in each section).",
+        "",
+        format_table(rows),
+        "",
+    ]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

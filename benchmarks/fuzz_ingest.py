@@ -19,10 +19,30 @@ path is added (subprocess: ``python -m benchmarks.fuzz_ingest --atheris -runs=N`
 
     python -m benchmarks.fuzz_ingest            # 1,000,000 cases (record)
     python -m benchmarks.fuzz_ingest --quick    # 20,000 cases
+
+``--serve`` fuzzes the real command instead (issue 31: "fuzz re-run in the default worker
+mode"; ``glmav_testkit.serve_fuzz``): ``glmav-observer serve`` as a subprocess on
+``udpin:127.0.0.1:PORT`` with its default outputs (Zenoh on, a service id of its own) and
+``--out``, once without ``--workers`` (one worker per usable core) and once with
+``--workers 1``; per mode a vehicle-safe session and a chaos session, each the vehicle's
+stream (the simulator's ``cruise``, 120 s; 10 s with ``--quick``) sent at the vehicle's
+own rate with three damaged datagrams after every valid frame, over UDP. Every datagram
+is framed beforehand by the service's own decoder in this process: the service's link
+counters (summed over the workers) must equal it reason by reason; no crash (alive after
+the traffic, exit 0 after SIGTERM with its summary, no traceback); the sender holds back
+while 1 MB is queued on the port, so no datagram is lost unless the service stops
+reading; vehicle-safe: the vehicle's records identical to its clean stream's. In the
+chaos sessions frames with the vehicle's own ids but another timeline are a second
+source on its system id: the service stops estimating it by design (docs/reliability.md,
+"Two sources with one system id"); its records are reported, not judged.
+
+    python -m benchmarks.fuzz_ingest --serve            # 2 modes x 2 sessions x 120 s
+    python -m benchmarks.fuzz_ingest --serve --quick    # 10 s sessions
 """
 
 from __future__ import annotations
 
+import argparse
 import collections
 import re
 import subprocess
@@ -143,7 +163,195 @@ def run_atheris(runs: int, timeout_s: float = 600.0) -> dict[str, Any]:
     }
 
 
-def run(quick: bool = False) -> dict[str, Any]:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--serve",
+        action="store_true",
+        help="fuzz the real `glmav-observer serve` over UDP in the default worker mode and "
+        "with one worker, instead of the input path in this process",
+    )
+
+
+#: vehicle seconds of a ``--serve`` session (the vehicle's stream, fuzzed throughout)
+SERVE_SESSION_S = 120.0
+SERVE_SESSION_S_QUICK = 10.0
+
+
+def run_serve(quick: bool = False) -> dict[str, Any]:
+    """The damage over UDP to ``serve``, default workers and one worker (module docstring)."""
+    import os
+    import tempfile
+
+    from glmav_testkit.serve_fuzz import clean_series, make_plan, run_session
+    from glmav_testkit.serve_process import usable_cores
+
+    vehicle_s = SERVE_SESSION_S_QUICK if quick else SERVE_SESSION_S
+    t0 = time.perf_counter()
+    stream = sitl_stream("cruise", vehicle_s, seed=1)
+    clean = clean_series(stream)
+    corrupt = load_corrupt_log(REAL_TLOGS)
+    plans = {
+        "vehicle-safe": make_plan(stream, vehicle_s, corrupt, 1001, vehicle_safe=True),
+        "chaos": make_plan(stream, vehicle_s, corrupt, 1002, vehicle_safe=False),
+    }
+    prep_s = time.perf_counter() - t0
+    load_before = os.getloadavg()
+    sessions: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="glmav-fuzz-serve-") as tmp:
+        for workers in (None, 1):
+            mode = f"default ({usable_cores()} workers)" if workers is None else f"{workers} worker"
+            for kind, plan in plans.items():
+                sid = f"fuzz-{os.getpid()}-{'default' if workers is None else workers}-{kind}"
+                r = run_session(plan, workers, Path(tmp), zenoh=True, service_id=sid)
+                sessions.append(_serve_row(mode, kind, r, clean, vehicle_s))
+                print(sessions[-1], file=sys.stderr, flush=True)
+    goals = []
+    for row in sessions:
+        label = f"{row['mode']}, {row['session']}"
+        goals += [
+            goal(f"{label}: crashes (dead, exit code, no summary, traceback)",
+                 float(row["crashed"]), 0.0, higher_is_better=False),
+            goal(f"{label}: framing counters off the reference decoder (sum)",
+                 float(row["framing_diff"]), 0.0, higher_is_better=False),
+            goal(f"{label}: datagrams lost (kernel drops)", float(row["kernel_drops"]), 0.0,
+                 higher_is_better=False),
+        ]  # fmt: skip
+        if row["session"] == "vehicle-safe":
+            goals.append(goal(f"{label}: vehicle's records identical to the clean run",
+                              float(row["vehicle_identical"]), 1.0, higher_is_better=True))  # fmt: skip
+    return {
+        "name": "fuzz_ingest_serve",
+        "quick": quick,
+        "vehicle_s": vehicle_s,
+        "valid_frames": len(stream.frames),
+        "clean_full_records": len(clean),
+        "prep_s": prep_s,
+        "kinds": {k: dict(sorted(p.kinds.items())) for k, p in plans.items()},
+        "expected": {k: p.expected for k, p in plans.items()},
+        "loadavg_before": load_before,
+        "loadavg_after": os.getloadavg(),
+        "sessions": sessions,
+        "goals": goals,
+    }
+
+
+def _serve_row(mode: str, kind: str, r: Any, clean: list[Any], vehicle_s: float) -> dict[str, Any]:
+    s = r.stopped.summary
+    framing = r.framing()
+    expected = r.plan.expected
+    diff = sum(abs(framing.get(k, 0) - expected.get(k, 0)) for k in set(framing) | set(expected))
+    tracebacks = r.stopped.stderr.count("Traceback")
+    crashed = (not r.alive_after_traffic or r.stopped.returncode != 0 or not s.present
+               or tracebacks > 0)  # fmt: skip
+    series = r.vehicle_series
+    return {
+        "mode": mode,
+        "session": kind,
+        "cases": r.plan.cases,
+        "datagrams": r.sent,
+        "wall_s": r.wall_s,
+        "datagrams_per_s": r.sent / max(1e-9, r.wall_s),
+        "held_s": r.held_s,
+        "kernel_drops": r.kernel_drops,
+        "alive_after_traffic": r.alive_after_traffic,
+        "returncode": r.stopped.returncode,
+        "summary_present": s.present,
+        "tracebacks": tracebacks,
+        "crashed": crashed,
+        "stop_s": r.stopped.stop_s,
+        "framing": framing,
+        "framing_diff": diff,
+        "rejected_frames": s.rejected_frames,
+        "messages": s.messages,
+        "records": s.records,
+        "service_counters": s.service,
+        "vehicles_in_summary": len(s.vehicles),  # admitted at some time (evicted ones too)
+        "workers": s.workers,
+        "vehicle_full_records": len(series),
+        "vehicle_identical": series == clean,
+        "vehicle_last_t_fraction": (series[-1][0] / clean[-1][0]) if series else 0.0,
+        "rss_end_mb": {k: v["rss_mb"] for k, v in r.processes.items()},
+        "stderr_tail": r.stopped.stderr[-1500:] if crashed else "",
+    }
+
+
+def serve_to_markdown(result: dict[str, Any]) -> str:
+    from benchmarks.common import format_goals, machine
+
+    r = result
+    m = r.get("machine") or machine()
+    cols = ("mode", "session", "cases", "datagrams", "datagrams_per_s", "held_s",
+            "kernel_drops", "returncode", "stop_s", "rejected_frames", "messages",
+            "vehicles_in_summary", "vehicle_full_records", "vehicle_identical",
+            "vehicle_last_t_fraction")  # fmt: skip
+    lines = [
+        "Command: `python -m benchmarks.fuzz_ingest --serve"
+        + (" --quick" if r["quick"] else "")
+        + f"` — the real `glmav-observer serve` (default outputs: Zenoh on; `--out`), "
+        f"per mode a vehicle-safe and a chaos session of {r['vehicle_s']:.0f} s of the "
+        f"vehicle ({r['valid_frames']:,} valid frames, {CASES_PER_FRAME} damaged datagrams "
+        f"after each) over UDP loopback; {m['cpu']}, {m['cores']} cores; load average "
+        f"{r['loadavg_before'][0]:.1f} before, {r['loadavg_after'][0]:.1f} after"
+        + (f" (run at {r['git_head']})" if r.get("git_head") else "")
+        + ".",
+        "",
+        format_goals(r["goals"]),
+        "",
+        format_table([{k: row[k] for k in cols} for row in r["sessions"]]),
+        "",
+        "Framing counters (the service's, summed over its workers; equal to the reference "
+        "decoder's where the goal above says 0):",
+        "",
+        format_table([
+            {"mode": row["mode"], "session": row["session"], **row["framing"]}
+            for row in r["sessions"]
+        ]),
+        "",
+        "Service counters:",
+        "",
+    ]  # fmt: skip
+    for row in r["sessions"]:
+        sc = ", ".join(f"{k} {v:,}" for k, v in sorted(row["service_counters"].items()))
+        lines.append(f"- {row['mode']}, {row['session']}: {sc}; RSS at the end (MB): "
+                     + ", ".join(f"{k} {v:.1f}" for k, v in row["rss_end_mb"].items()))  # fmt: skip
+    lines += [
+        "",
+        "Cases by kind: "
+        + "; ".join(
+            f"{k}: " + ", ".join(f"{n} {c:,}" for n, c in kinds.items())
+            for k, kinds in r["kinds"].items()
+        )
+        + ".",
+    ]
+    for row in r["sessions"]:
+        if row["stderr_tail"]:
+            lines += ["", f"{row['mode']}, {row['session']} stderr:", "", "```",
+                      row["stderr_tail"], "```"]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def write_doc() -> None:
+    """docs/benchmarks/fuzz_ingest.md from the recorded results (either or both)."""
+    import json
+
+    from benchmarks.common import RESULTS_DIR
+
+    parts = ["# fuzz_ingest", ""]
+    served = RESULTS_DIR / "fuzz_ingest_serve.json"
+    inproc = RESULTS_DIR / "fuzz_ingest.json"
+    if served.exists():
+        parts += ["## The real `serve` over UDP, default worker mode and one worker (issue 31)",
+                  "", serve_to_markdown(json.loads(served.read_text()))]  # fmt: skip
+    if inproc.exists():
+        parts += ["## The input path in the benchmark's process", "",
+                  to_markdown(json.loads(inproc.read_text()))]  # fmt: skip
+    DOC.parent.mkdir(parents=True, exist_ok=True)
+    DOC.write_text("\n".join(parts), encoding="utf-8")
+
+
+def run(quick: bool = False, serve: bool = False) -> dict[str, Any]:
+    if serve:
+        return run_serve(quick)
     n_target = 20_000 if quick else 1_000_000
     stream = sitl_stream("cruise", 6.0, seed=1)
     clean = Harness()
@@ -236,6 +444,8 @@ def run(quick: bool = False) -> dict[str, Any]:
 def to_markdown(result: dict[str, Any]) -> str:
     from benchmarks.common import format_goals
 
+    if result.get("name") == "fuzz_ingest_serve":
+        return serve_to_markdown(result)
     s = result["sessions"]
     ath = result["atheris"]
     lines = [
@@ -310,13 +520,5 @@ if __name__ == "__main__":
         _atheris_main([a for a in sys.argv[1:] if a != "--atheris"])
     else:
         code = main_for(sys.modules[__name__])
-        res_path = ROOT / "benchmarks" / "results" / "fuzz_ingest.json"
-        if res_path.exists():
-            import json
-
-            DOC.parent.mkdir(parents=True, exist_ok=True)
-            DOC.write_text(
-                "# fuzz_ingest\n\n" + to_markdown(json.loads(res_path.read_text())),
-                encoding="utf-8",
-            )
+        write_doc()
         sys.exit(code)

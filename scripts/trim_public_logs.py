@@ -10,12 +10,13 @@ Run once by hand (``python scripts/trim_public_logs.py``); the outputs are commi
 
 Both are gzip-compressed; tests decompress them into a temporary directory.
 
-``python scripts/trim_public_logs.py --matrix RAW_DIR`` derives the compatibility matrix's
+``python scripts/trim_public_logs.py --matrix RAW_DIR [FILE...]`` derives the compatibility matrix's
 logs (tests/data/public-logs/matrix.toml; each entry's ``raw`` file, fetched from the
 public repository it names, in RAW_DIR) into tests/data/public-logs/matrix/, xz-compressed:
 dataflash logs keep the messages any generation's reader uses (instance 0 of the IMU and
 GPS, every EKF core), ULogs the topics the reader uses, telemetry logs are kept whole. An
 entry with ``text_of`` is the text dump (``.log``) of another entry's trimmed binary log.
+Given FILE names (matrix.toml's ``file``), only those entries are derived.
 """
 
 from __future__ import annotations
@@ -134,8 +135,9 @@ def dataflash_as_text(data: bytes) -> str:
     return "\n".join(lines) + "\n"
 
 
-def trim_matrix(raw_dir: Path) -> None:
-    """The matrix's logs (see the module docstring) from the raw files in ``raw_dir``."""
+def trim_matrix(raw_dir: Path, only: frozenset[str] = frozenset()) -> None:
+    """The matrix's logs (see the module docstring) from the raw files in ``raw_dir``;
+    with ``only``, just the entries of those files (the others are left as they are)."""
     import tempfile
 
     from glmav_observer.ingest.logfiles import detect_format
@@ -144,8 +146,8 @@ def trim_matrix(raw_dir: Path) -> None:
     entries = tomllib.loads(MANIFEST.read_text())["log"]
     trimmed: dict[str, bytes] = {}
     for e in entries:
-        if "raw" not in e:
-            continue  # one of the two fixtures above
+        if "raw" not in e or (only and e["file"] not in only):
+            continue  # a text dump (below), or an entry not asked for
         src = raw_dir / e["raw"]
         fmt = detect_format(src)
         if fmt == "dataflash":
@@ -164,7 +166,7 @@ def trim_matrix(raw_dir: Path) -> None:
         trimmed[e["file"]] = out
         (MATRIX_DST / f"{e['file']}.xz").write_bytes(lzma.compress(out, preset=9))
     for e in entries:
-        if "text_of" in e:
+        if "text_of" in e and (not only or e["file"] in only):
             text = dataflash_as_text(trimmed[e["text_of"]]).encode()
             (MATRIX_DST / f"{e['file']}.xz").write_bytes(lzma.compress(text, preset=9))
     for p in sorted(MATRIX_DST.glob("*.xz")):
@@ -172,8 +174,8 @@ def trim_matrix(raw_dir: Path) -> None:
 
 
 def main() -> int:
-    if len(sys.argv) == 3 and sys.argv[1] == "--matrix":
-        trim_matrix(Path(sys.argv[2]))
+    if len(sys.argv) >= 3 and sys.argv[1] == "--matrix":
+        trim_matrix(Path(sys.argv[2]), frozenset(sys.argv[3:]))
         return 0
     DST.mkdir(parents=True, exist_ok=True)
     bin_out = trim_dataflash((SRC / "arducopter_sitl_00000001.BIN").read_bytes())

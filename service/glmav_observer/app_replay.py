@@ -27,6 +27,7 @@ from glmav_observer.records import CONFIGS, Record, VelocityRecord
 
 if TYPE_CHECKING:
     from glmav_observer.ingest.logfiles import FlightLog
+    from glmav_observer.ingest.logfiles.tlog import TlogScan
 
 
 def replay_tlog(
@@ -36,21 +37,30 @@ def replay_tlog(
     *,
     progress: Callable[[int, int], None] | None = None,
     stop_event: threading.Event | None = None,
+    scan: TlogScan | None = None,
 ) -> ServiceSummary:
     """Run the pipeline over a ``.tlog`` (deterministic); sinks are closed at the end.
 
     If ``stop_event`` is set during the replay, it stops there, closes the sinks (their
-    files end on whole records) and the summary's ``cut`` says where it stopped."""
-    data = Path(path).read_bytes()
+    files end on whole records) and the summary's ``cut`` says where it stopped. ``scan``
+    is the log's :func:`~glmav_observer.ingest.logfiles.tlog.check_tlog` (``replay`` and
+    ``batch`` refuse a log the estimator cannot use): the replay goes on with the frames
+    it decoded instead of reading and decoding them again."""
+    if scan is not None:
+        data = scan.data
+        records, counters = scan.replay_records()
+    else:
+        data = Path(path).read_bytes()
+        counters = FrameCounters()
+        records = iter_tlog(data, counters)
     service = Service(config, sinks)
-    counters = FrameCounters()
     service.decoders[str(path)] = FrameDecoder(datagram=False, counters=counters)
     n = len(data)
     step = max(1, n // 200)
     next_report = 0
     cut = ""
     try:
-        for rec in iter_tlog(data, counters):
+        for rec in records:
             if stop_event is not None and stop_event.is_set():
                 cut = f"stopped at byte {rec.offset} of {n} ({100 * rec.offset // max(n, 1)} %)"
                 break

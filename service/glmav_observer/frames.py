@@ -9,7 +9,8 @@ as (w, x, y, z) (:func:`euler_from_quaternion_wxyz`).
 Two forms of each, tested against each other to 1e-12 (tests/unit/glmav_observer/test_frames.py):
 
 - scalar (plain floats, the per-sample fast path: numpy's per-call overhead dominates for
-  one 3×3 matrix): :func:`e_flat` gives E as a flat row-major list of nine floats,
+  one 3×3 matrix; compiled in :mod:`glmav_observer.rotation`, re-exported here):
+  :func:`e_flat` gives E as a flat row-major list of nine floats,
   :func:`rotate_flat` / :func:`rotate_t_flat` give E v / Eᵀ v, :func:`quaternion_xyzw`;
 - numpy, broadcasting over leading batch dimensions ``...``: :func:`e_exact` (..., 3, 3),
   :func:`rotate` / :func:`rotate_t`, :func:`quaternion_xyzw_array` (..., 4),
@@ -30,6 +31,11 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+# the scalar forms are compiled (rotation.pyx, cimported by the per-sample core)
+from glmav_observer.rotation import e_flat as e_flat  # noqa: PLC0414
+from glmav_observer.rotation import rotate_flat as rotate_flat  # noqa: PLC0414
+from glmav_observer.rotation import rotate_t_flat as rotate_t_flat  # noqa: PLC0414
 
 FloatArray = NDArray[np.float64]
 
@@ -54,38 +60,6 @@ def as_vectors(name: str, value: ArrayLike, trailing: tuple[int, ...]) -> FloatA
 
 
 # --------------------------------------------------------------------------- scalar forms
-
-
-def e_flat(phi_rad: float, theta_rad: float, psi_rad: float) -> list[float]:
-    """E (13) as a flat row-major list of nine plain floats: ``E[3 i + j]`` is row i, column j."""
-    sf, cf = math.sin(phi_rad), math.cos(phi_rad)
-    st, ct = math.sin(theta_rad), math.cos(theta_rad)
-    sp, cp = math.sin(psi_rad), math.cos(psi_rad)
-    return [
-        ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp,
-        ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp,
-        -st, sf * ct, cf * ct,
-    ]  # fmt: skip
-
-
-def rotate_flat(E: Sequence[float], v: Sequence[float]) -> list[float]:
-    """E v for a flat row-major E (:func:`e_flat`): body to earth."""
-    v0, v1, v2 = v
-    return [
-        E[0] * v0 + E[1] * v1 + E[2] * v2,
-        E[3] * v0 + E[4] * v1 + E[5] * v2,
-        E[6] * v0 + E[7] * v1 + E[8] * v2,
-    ]
-
-
-def rotate_t_flat(E: Sequence[float], v: Sequence[float]) -> list[float]:
-    """Eᵀ v for a flat row-major E (:func:`e_flat`): earth to body."""
-    v0, v1, v2 = v
-    return [
-        E[0] * v0 + E[3] * v1 + E[6] * v2,
-        E[1] * v0 + E[4] * v1 + E[7] * v2,
-        E[2] * v0 + E[5] * v1 + E[8] * v2,
-    ]
 
 
 def quaternion_xyzw(euler_rad: Sequence[float]) -> tuple[float, float, float, float]:

@@ -159,18 +159,33 @@ def run(  # noqa: PLR0917 (the positional order is the documented API of issue #
         vehicle.poll_streams()
         if on_truth is not None:
             on_truth(sim.truth())
-        step = sim.step
+        advance: Callable[[int], None] = sim.advance
         if gcs_flight and autopilot is not None:
             ground = autopilot.after_step
 
-            def step() -> None:
-                sim.step()
-                ground()
+            def advance(k: int) -> None:
+                for _ in range(k):
+                    sim.step()
+                    ground()
 
         poll = vehicle.poll_streams
         tick = vehicle.tick
+        dt_us = sim.dt_us
         while sim.t_us < end_us:
-            step()
+            # the physics steps up to the next step where something else is due (a stream,
+            # a control period's inputs and pacing, a truth callback, the end), in one call;
+            # the same steps as one at a time, with the same things done after each
+            n = sim.n_steps
+            t_us = sim.t_us
+            k = poll_every - n % poll_every
+            if on_truth is not None and truth_every - n % truth_every < k:
+                k = truth_every - n % truth_every
+            k_stream = -((t_us - vehicle.next_stream_us) // dt_us)  # ceil(wait / dt)
+            if k_stream < k:
+                k = k_stream if k_stream > 1 else 1
+            k_end = -((t_us - end_us) // dt_us)
+            k = min(k, k_end)
+            advance(k)
             poll()
             n = sim.n_steps
             if on_truth is not None and n % truth_every == 0:

@@ -39,10 +39,12 @@ class WindModel:
     rng: np.random.Generator
     _turb: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     _t_last_s: float | None = None
+    _turbulent: bool = field(default=False, init=False)
 
     def __post_init__(self) -> None:
         sig = self.config.turbulence_sigma_mps
-        if any(s > 0.0 for s in sig):
+        self._turbulent = any(s > 0.0 for s in sig)
+        if self._turbulent:
             # start in the stationary distribution
             self._turb = [
                 s * float(n) for s, n in zip(sig, self.rng.standard_normal(3), strict=True)
@@ -52,7 +54,7 @@ class WindModel:
         """Advance the turbulence to ``t_s`` and return the total wind (NED, m/s)."""
         cfg = self.config
         sig = cfg.turbulence_sigma_mps
-        if self._t_last_s is not None and any(s > 0.0 for s in sig):
+        if self._turbulent and self._t_last_s is not None:
             dt = t_s - self._t_last_s
             if dt > 0.0:
                 a = math.exp(-dt / cfg.turbulence_time_constant_s)

@@ -15,7 +15,8 @@ Every file given (directories are searched recursively) is replayed like ``repla
 Logs run in a local process pool (``--workers``, default the CPU count); with
 ``--cluster ADDRESS`` they run on a Dask distributed cluster instead (the scheduler's
 address, e.g. ``tcp://127.0.0.1:8786``; the log paths must be readable by its workers).
-A log that fails is reported in the summary and does not stop the batch. Every output
+A log that fails, or is refused for lacking what the estimator needs (the ``refusal``
+column, as ``replay`` words it), is reported in the summary and does not stop the batch. Every output
 file is whole or absent (written under a hidden name, renamed when complete); pymavlink's
 reports about a damaged dataflash log are counted in the summary, not printed. Exit
 codes: 0 every log replayed, 1 some logs could not be replayed (the others' outputs are

@@ -128,6 +128,7 @@ def process_log(
     from glmav_observer.app_replay import replay_flight_log, replay_tlog
     from glmav_observer.config import load_config
     from glmav_observer.ingest.logfiles import LogError, UnsupportedLogError, detect_format
+    from glmav_observer.ingest.logfiles.tlog import check_tlog
     from glmav_toml import ConfigError
 
     row: dict[str, Any] = {"log_id": log_id, "path": path, "error": None}
@@ -136,8 +137,8 @@ def process_log(
         config = load_config(config_path)
         fmt = detect_format(path)
         row["format"] = fmt
-        if fmt == "tlog":
-            s = replay_tlog(path, config, [sink])
+        if fmt == "tlog":  # refused (below) when no vehicle sent all the estimator needs
+            s = replay_tlog(path, config, [sink], scan=check_tlog(path))
             t_start = min((r.t_boot_s for r in sink.records), default=0.0)
             v = next(iter(s.vehicles.values()), None)
             row.update(vehicle="MAVLink", **_tlog_duration_and_rates(sink.records, v))

@@ -1,7 +1,9 @@
 """``glmav-observer replay LOG``: the service's pipeline over a recorded log.
 
 The log is recognised by its content (:func:`glmav_observer.ingest.logfiles.detect_format`):
-a MAVLink ``.tlog`` goes through MAVLink ingest; an ArduPilot dataflash (``.bin``/``.log``)
+a MAVLink ``.tlog`` goes through MAVLink ingest, once a vehicle in it has been found to send
+what the estimator needs (``ATTITUDE``, an IMU message and ``LOCAL_POSITION_NED``:
+:mod:`glmav_observer.ingest.logfiles.tlog`); an ArduPilot dataflash (``.bin``/``.log``)
 or PX4 ULog (``.ulg``) is read into the same samples (``--velocity-source gps|ekf``, GPS
 delay from the log's parameters or estimated, ``--gps-delay S`` to impose one).
 
@@ -10,7 +12,8 @@ Deterministic (the vehicle's clock drives everything; two runs give byte-identic
 per configuration RMSE against SIM_STATE when the log has it, faults isolated,
 switches, samples dropped and frames rejected. ``--rrd PATH`` saves a Rerun recording.
 Exit codes: 0 done, 2 bad configuration, output path or log file (nothing in it could
-be read as MAVLink; a damaged flight log, leaving no output), 1 an output failed while
+be read as MAVLink; a damaged flight log; a log without what the estimator needs,
+"unsupported: this log has no X"; each leaving no output), 1 an output failed while
 writing (e.g. a full disk), 130/143/129 stopped by SIGINT/SIGTERM/SIGHUP (the summary says
 where; the outputs end on whole records). ``--out`` and ``--rrd`` never write through a
 link or onto a device; an existing file is overwritten only with ``--force``.
@@ -24,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from glmav_observer.ingest.logfiles import FlightLog
+    from glmav_observer.ingest.logfiles.tlog import TlogScan
 
 #: Logs smaller than this get no progress bar.
 PROGRESS_MIN_BYTES = 2_000_000
@@ -84,6 +88,7 @@ def main(args: argparse.Namespace) -> int:
     from glmav_observer.app_sinks import open_sinks
     from glmav_observer.config import load_config
     from glmav_observer.ingest.logfiles import LogError, detect_format, read_flight_log
+    from glmav_observer.ingest.logfiles.tlog import check_tlog
     from glmav_observer.publish.file_sink import FileSinkError
     from glmav_observer.publish.output_files import check_output_target
     from glmav_toml import ConfigError
@@ -93,10 +98,14 @@ def main(args: argparse.Namespace) -> int:
         print(f"glmav-observer replay: {log}: no such file", file=sys.stderr)
         return 2
     flight_log: FlightLog | None = None
+    scan: TlogScan | None = None
     try:
         config = load_config(args.config)
         fmt = detect_format(log)
-        if fmt != "tlog":  # read before any output is created: a damaged log leaves none
+        # read before any output is created: a damaged or unusable log leaves none
+        if fmt == "tlog":  # until a vehicle has sent all the estimator needs
+            scan = check_tlog(log)
+        else:
             for path in (args.out, args.rrd):
                 if path:
                     check_output_target(path, force=args.force)
@@ -134,7 +143,7 @@ def main(args: argparse.Namespace) -> int:
     previous = {sig: signal.signal(sig, on_signal) for sig in signals}
     try:
         summary = replay_tlog(
-            log, config, sinks, progress=_Progress() if show else None, stop_event=stop
+            log, config, sinks, progress=_Progress() if show else None, stop_event=stop, scan=scan
         )
     finally:
         for sig, handler in previous.items():

@@ -1,13 +1,13 @@
 """The observer bank: the four configurations (full, c1, c2, c3) of one vehicle, or of many.
 
-(The one update written two ways that tests pin to each other: the plain-float loop and
-the batched numpy form across vehicles.)
+(The one update written two ways that tests pin to each other: the compiled per-sample
+step and the batched numpy form across vehicles.)
 
 :class:`ObserverBank` holds one vehicle's state and advances all configurations with the
 exact zero-order-hold update of (16) (:func:`~glmav_observer.estimation.observer.zoh_step`).
-For the exact E it runs a plain-float twin of the closed form (:func:`_step_closed_form`;
-numpy call overhead dominates for 4×3 arrays); tests check it against the numpy form to
-1e-12. :class:`BatchedBank` does the same for ``n`` vehicles with numpy, vectorised over
+For the exact E and two or three measured axes per configuration it runs the closed form
+compiled (:class:`~glmav_observer.estimation.bank_core.BankCore`, which holds the state);
+tests check it against the numpy form to 1e-12. :class:`BatchedBank` does the same for ``n`` vehicles with numpy, vectorised over
 vehicles and configurations. The configurations (names, masks, default γ) come from
 :mod:`glmav_observer.configurations`, E from :mod:`glmav_observer.frames`.
 
@@ -31,6 +31,8 @@ from glmav_observer.configurations import (
     DEFAULT_GAMMA,
     config_index,
 )
+from glmav_observer.estimation.bank_core import BankCore
+from glmav_observer.estimation.inputs import HeldInputs
 from glmav_observer.estimation.observer import (
     G_MPS2,
     BoolArray,
@@ -39,25 +41,16 @@ from glmav_observer.estimation.observer import (
     NonFiniteInputError,
     e_matrix,
     gamma_body_mps2,
-    phi1_phi2_scalar,
     phi_terms,
     zoh_earth,
     zoh_step,
 )
-from glmav_observer.frames import ShapeError, e_flat, rotate, rotate_flat, rotate_t
+from glmav_observer.frames import ShapeError, rotate, rotate_t
 
 #: The masks of a step where every measured axis is valid and allowed (identity-checked).
 _STANDARD_MASKS: list[tuple[bool, bool, bool]] = [
     (bool(r[0]), bool(r[1]), bool(r[2])) for r in CONFIG_MASKS.tolist()
 ]
-
-
-#: Step lengths whose φ-terms an :class:`ObserverBank` keeps. A vehicle's sample times
-#: interleave a few streams (IMU 250 Hz, ATTITUDE 100 Hz: steps of 1 to 4 ms), and each
-#: length comes as several float round-offs of a time difference: on the simulator's
-#: stream 40 distinct lengths, 99 % of steps found among the last 16 (8: 99 %, 4: 76 %,
-#: the former single entry: 26 %).
-TERMS_CACHE_SIZE = 16
 
 
 def _gammas(gamma_per_config: Mapping[str, float] | None) -> tuple[float, ...]:
@@ -101,70 +94,13 @@ _STANDARD_LOST: tuple[int, ...] = tuple(
 )
 
 
-def _step_closed_form(  # noqa: PLR0917 -- the inputs of one step, in the API order
-    xs: list[list[float]],
-    E: list[float],
-    we: list[float],
-    a: list[float],
-    y: Sequence[float],
-    lost: Sequence[int],
-    terms: list[tuple[float, float, float]],
-    gammas: tuple[float, ...],
-    h: float,
-) -> list[list[float]]:
-    """Every configuration, exact E, two or three measured axes each: the closed form of
-    :func:`~glmav_observer.estimation.observer.zoh_earth` in plain floats (its fast path,
-    pinned to it by tests/unit/glmav_observer/estimation/test_bank.py to 1e-12; one loop
-    body in local variables: ``python -m benchmarks.bench_observer`` measures why).
-
-    ``E`` flat row-major (:func:`~glmav_observer.frames.e_flat`), ``we = ω_e = E ω``,
-    ``a = E Γ``, ``y`` the measurement (only measured axes are read; they are finite),
-    ``lost[i]`` configuration i's unmeasured axis (−1: none), ``terms[i] = (e^{−γh},
-    h φ1(−γh), h² φ2(−γh))``.
-    """
-    e00, e01, e02, e10, e11, e12, e20, e21, e22 = E
-    out: list[list[float]] = []
-    for (u0, u1, u2), l_, (e, hp1, h2p2), g in zip(xs, lost, terms, gammas, strict=True):
-        z = [
-            e00 * u0 + e01 * u1 + e02 * u2,
-            e10 * u0 + e11 * u1 + e12 * u2,
-            e20 * u0 + e21 * u1 + e22 * u2,
-        ]  # z = E x̂
-        if l_ < 0:  # C = I: ż = a − ω_e × y + γ (y − z)
-            y0, y1, y2 = y
-            w0, w1, w2 = we
-            z = [
-                e * z[0] + hp1 * (a[0] - (w1 * y2 - w2 * y1) + g * y0),
-                e * z[1] + hp1 * (a[1] - (w2 * y0 - w0 * y2) + g * y1),
-                e * z[2] + hp1 * (a[2] - (w0 * y1 - w1 * y0) + g * y2),
-            ]
-        else:  # lost axis l, measured m1 = l+1, m2 = l+2 (cyclic); ż_l = (a − ω_e × Ȳ)_l
-            m1 = (l_ + 1) % 3
-            m2 = (l_ + 2) % 3
-            wl, wm1, wm2 = we[l_], we[m1], we[m2]
-            ym1, ym2 = y[m1], y[m2]
-            zl0 = z[l_]
-            cl = a[l_] - (wm1 * ym2 - wm2 * ym1)
-            z[l_] = zl0 + h * cl
-            z[m1] = e * z[m1] + hp1 * (a[m1] + wl * ym2 + g * ym1 - wm2 * zl0) - h2p2 * wm2 * cl
-            z[m2] = e * z[m2] + hp1 * (a[m2] - wl * ym1 + g * ym2 + wm1 * zl0) + h2p2 * wm1 * cl
-        z0, z1, z2 = z
-        out.append(
-            [
-                e00 * z0 + e10 * z1 + e20 * z2,  # x̂ = Eᵀ z
-                e01 * z0 + e11 * z1 + e21 * z2,
-                e02 * z0 + e12 * z1 + e22 * z2,
-            ]
-        )
-    return out
-
-
 class ObserverBank:
     """All four configurations of one vehicle (CONFIGS order: full, c1, c2, c3).
 
     ``step`` advances every configuration by ``dt_s`` with the inputs held (exact ZOH of
     (16)); inputs are validated before any state changes. A NaN axis of the measured
-    velocity is treated as not measured (``last_meas_mask`` shows what was used).
+    velocity is treated as not measured (``last_meas_mask`` shows what was used). The
+    state and the last E live in the compiled :class:`BankCore`.
     """
 
     def __init__(
@@ -179,22 +115,22 @@ class ObserverBank:
         self.g_mps2 = float(g_mps2)
         self.gamma_gain: tuple[float, ...] = _gammas(gamma_per_config)
         self._gamma_arr = np.array(self.gamma_gain)
-        self._x: list[list[float]] = [[0.0, 0.0, 0.0] for _ in CONFIGS]
-        self._E_last: list[float] | FloatArray = np.eye(3)
-        self._masks_last: list[tuple[bool, bool, bool]] = _STANDARD_MASKS
-        #: the φ-terms of each configuration by step length h (they depend only on γ and
-        #: h): a vehicle's steps take a few lengths, each seen with a few float round-offs
-        self._terms_by_h: dict[float, list[tuple[float, float, float]]] = {}
+        self._core = BankCore(self.gamma_gain, self.g_mps2, _STANDARD_LOST)
+        #: the masks of the last step (None: the last step was :meth:`advance`'s, whose
+        #: masks the core's lost axes tell)
+        self._masks_last: list[tuple[bool, bool, bool]] | None = _STANDARD_MASKS
 
     @property
     def last_meas_mask(self) -> BoolArray:
         """(4, 3) bool: the NED axes each configuration used in the last step."""
+        if self._masks_last is None:
+            return np.array([[k != lost for k in range(3)] for lost in self._core.lost()])
         return np.array(self._masks_last, dtype=bool)
 
     @property
     def e_last(self) -> FloatArray:
         """(3, 3) the E of the last step (identity before the first)."""
-        return np.array(self._E_last, dtype=np.float64).reshape(3, 3)
+        return np.array(self._core.e_list(), dtype=np.float64).reshape(3, 3)
 
     def set_gamma(self, config: str, gamma: float) -> None:
         """Change one configuration's gain γ (1/s; finite, > 0) from the next step on."""
@@ -204,36 +140,27 @@ class ObserverBank:
         g[config_index(config)] = float(gamma)
         self.gamma_gain = tuple(g)
         self._gamma_arr = np.array(self.gamma_gain)
-        self._terms_by_h.clear()  # the φ-terms depend on γ
+        self._core.set_gammas(self.gamma_gain)  # (drops the φ-terms: they depend on γ)
 
     # ------------------------------------------------------------------ state access
     @property
     def x_hat_body_mps(self) -> FloatArray:
         """(4, 3) body-frame (FRD) velocity estimates, m/s, CONFIGS order (a copy)."""
-        return np.array(self._x)
+        return np.array(self._core.rows())
 
     def x_hat_ned_mps(self) -> FloatArray:
         """(4, 3) NED velocity estimates E x̂ under the attitude of the last step (a copy)."""
-        return np.array(self._x) @ self.e_last.T
+        return np.array(self._core.rows()) @ self.e_last.T
 
     def e_last_flat(self) -> list[float]:
-        """:attr:`e_last` as a row-major list of 9 floats (the same values, no array).
-        Read-only: the bank's own list (each step makes a new one), not a copy."""
-        e = self._E_last
-        return e if isinstance(e, list) else e.ravel().tolist()
+        """:attr:`e_last` as a row-major list of 9 floats (a new list)."""
+        return self._core.e_list()
 
     def estimates_lists(self) -> tuple[list[list[float]], list[tuple[float, float, float]]]:
         """(body, NED) estimates, 4 rows of 3 floats each: :attr:`x_hat_body_mps` and
         :meth:`x_hat_ned_mps` without numpy, for the per-step records (the NED one summed
-        in matmul's order; test_bank asserts both equal the arrays). Read-only: the body
-        rows are the bank's own (each step makes new ones)."""
-        body = list(self._x)
-        e00, e01, e02, e10, e11, e12, e20, e21, e22 = self.e_last_flat()
-        ned = [
-            (e00 * u + e01 * v + e02 * w, e10 * u + e11 * v + e12 * w, e20 * u + e21 * v + e22 * w)
-            for u, v, w in body
-        ]
-        return body, ned
+        in matmul's order; test_bank asserts both equal the arrays). New lists."""
+        return self._core.rows(), self._core.ned_rows()
 
     def set_state_body(self, config: str, v_body_mps: ArrayLike) -> None:
         """Overwrite one configuration's body-frame state (m/s)."""
@@ -241,7 +168,7 @@ class ObserverBank:
         v = _vec3("v_body_mps", v_body_mps)
         if not all(math.isfinite(c) for c in v):
             raise NonFiniteInputError(f"v_body_mps: NaN or infinite value in {v!r}")
-        self._x[i] = v
+        self._core.set_row(i, v)
 
     def set_state_ned(self, config: str, v_ned_mps: ArrayLike, euler_rad: ArrayLike) -> None:
         """Hand-over: start ``config`` from an earth-frame velocity at attitude ``euler_rad``.
@@ -254,28 +181,28 @@ class ObserverBank:
         if not (np.isfinite(v).all() and np.isfinite(eul).all()):
             raise NonFiniteInputError(f"set_state_ned: NaN or infinite in {v!r} or {eul!r}")
         E = e_matrix(eul, self.e_form)
-        self._x[i] = np.linalg.solve(E, v).tolist()
+        self._core.set_row(i, np.linalg.solve(E, v).tolist())
 
     def set_attitude(self, euler_rad: Sequence[float]) -> None:
         """The attitude now (a new ATTITUDE at the bank's time): the E the estimates are
         rotated to NED with until the next step. The state (body frame) is unchanged;
         the next step computes its own E from its inputs."""
         if self.e_form == "exact":
-            self._E_last = e_flat(euler_rad[0], euler_rad[1], euler_rad[2])
+            self._core.set_attitude(euler_rad[0], euler_rad[1], euler_rad[2])
         else:
-            self._E_last = e_matrix(np.array(euler_rad), self.e_form)
+            self._core.set_e_list(e_matrix(np.array(euler_rad), self.e_form).ravel().tolist())
 
     def reset(self, v_body_mps: ArrayLike | None = None) -> None:
         """Set every configuration to ``v_body_mps`` ((3,) or (4, 3), default zero)."""
         if v_body_mps is None:
-            self._x = [[0.0, 0.0, 0.0] for _ in CONFIGS]
+            self._core.set_rows([[0.0, 0.0, 0.0] for _ in CONFIGS])
             return
         arr = np.asarray(v_body_mps, dtype=np.float64)
         if arr.shape not in ((3,), (4, 3)):
             raise ShapeError(f"v_body_mps: expected (3,) or (4, 3), got {arr.shape}")
         if not np.isfinite(arr).all():
             raise NonFiniteInputError(f"v_body_mps: NaN or infinite value in {arr.tolist()!r}")
-        self._x = np.broadcast_to(arr, (4, 3)).tolist()
+        self._core.set_rows(np.broadcast_to(arr, (4, 3)).tolist())
 
     # ------------------------------------------------------------------ update
     def _masks(
@@ -346,40 +273,33 @@ class ObserverBank:
         else:
             masks = self._masks(y, meas_mask)
         self._masks_last = masks
-        if self.e_form == "exact" and (
-            masks is _STANDARD_MASKS or all(m[0] + m[1] + m[2] >= 2 for m in masks)
-        ):
-            self._step_exact_fast(h, eul, w, f, y, masks)
+        if masks is _STANDARD_MASKS and self.e_form == "exact":
+            self._core.step(h, eul, w, f, y, _STANDARD_LOST)
+        elif self.e_form == "exact" and all(m[0] + m[1] + m[2] >= 2 for m in masks):
+            self._core.step(h, eul, w, f, y, [_lost_index(m) for m in masks])
         else:
             self._step_numpy(h, eul, w, f, y, masks)
 
-    def _step_exact_fast(  # noqa: PLR0917 -- the inputs of one step, in the API order
+    def advance(  # noqa: PLR0917 -- the held inputs and what the supervisor decided
         self,
-        h: float,
-        eul: Sequence[float],
-        w: Sequence[float],
-        f: Sequence[float],
-        y: Sequence[float],
-        masks: list[tuple[bool, bool, bool]],
-    ) -> None:
-        E = e_flat(*eul)
-        we = rotate_flat(E, w)  # ω_e = E ω
-        # a = E Γ = E (f + Eᵀ g e_z) = E f + (0, 0, g): gravity in body axes (9) is Eᵀ (0, 0, g)
-        a = rotate_flat(E, f)
-        a[2] += self.g_mps2
-        terms = self._terms_by_h.get(h)
-        if terms is None:  # φ-terms depend only on (γ, h): computed once per step length
-            terms = []
-            for g in self.gamma_gain:
-                xg = -g * h
-                p1, p2 = phi1_phi2_scalar(xg)
-                terms.append((math.exp(xg), h * p1, h * h * p2))
-            if len(self._terms_by_h) >= TERMS_CACHE_SIZE:
-                self._terms_by_h.clear()  # step lengths that wander: start over
-            self._terms_by_h[h] = terms
-        lost = _STANDARD_LOST if masks is _STANDARD_MASKS else [_lost_index(m) for m in masks]
-        self._x = _step_closed_form(self._x, E, we, a, y, lost, terms, self.gamma_gain, h)
-        self._E_last = E
+        t: float,
+        dt: float,
+        inputs: HeldInputs,
+        bias_body_mps2: Sequence[float],
+        propagate: bool,
+        b_obs: Sequence[float] | None,
+        use: Sequence[bool],
+    ) -> bool:
+        """The per-sample step in one compiled call (:meth:`BankCore.advance`): every
+        configuration over ``dt`` from the held inputs, then their IMU integrals. False
+        (nothing changed) where :meth:`step_floats` must step instead (the small-angle
+        E, a configuration with fewer than two measured axes, a non-finite input)."""
+        if self.e_form != "exact":
+            return False
+        if self._core.advance(t, dt, inputs, bias_body_mps2, propagate, b_obs, use):
+            self._masks_last = None
+            return True
+        return False
 
     def _step_numpy(  # noqa: PLR0917 -- the inputs of one step, in the API order
         self,
@@ -390,14 +310,16 @@ class ObserverBank:
         y: Sequence[float],
         masks: list[tuple[bool, bool, bool]],
     ) -> None:
+        """One or no measured axis in a configuration, or the small-angle E: the numpy
+        form (:func:`~glmav_observer.estimation.observer.zoh_step`)."""
         E = e_matrix(np.array(eul), self.e_form)
         Gam = gamma_body_mps2(np.array(f), np.array(eul), self.g_mps2)
         x_new = zoh_step(
-            np.array(self._x), np.array(w), Gam, E, np.array(y), np.array(masks),
+            np.array(self._core.rows()), np.array(w), Gam, E, np.array(y), np.array(masks),
             self._gamma_arr, h, orthogonal_e=self.e_form == "exact",
         )  # fmt: skip
-        self._x = x_new.tolist()
-        self._E_last = E
+        self._core.set_rows(x_new.tolist())
+        self._core.set_e_list(E.ravel().tolist())
 
 
 class BatchedBank:

@@ -1,6 +1,6 @@
 """The gain γ of ``full``: adapted to the noise a vehicle sends, lowered after a recovery.
 
-Adaptation (``adapt_gamma_full``). Every ``GAMMA_UPDATE_SAMPLES`` measurements, while
+Adaptation (``adapt_gamma_full``). Every ``update_samples`` (:class:`GainConfig`) measurements, while
 every axis is healthy and armed, γ of ``full`` is set from the noise this vehicle sends
 (:func:`~glmav_observer.estimation.observer.gamma_full_optimal`): the measurement's white
 noise from successive residual differences, E[Δr²] = 2 σ_y² + q Δt_y; the IMU's (q) from

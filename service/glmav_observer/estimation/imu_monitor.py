@@ -36,6 +36,7 @@ import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
+from glmav_observer.estimation.imu_window import mean_and_sigma
 from glmav_observer.estimation.reasons import const
 
 Vec3 = tuple[float, float, float]
@@ -120,13 +121,8 @@ class _Pair:
     f_last: Vec3 = (0.0, 0.0, 0.0)
 
     def mean_and_sigma(self) -> tuple[list[float], list[float], int]:
-        n = len(self.window)
-        if n < 2:
-            return [0.0] * 3, [math.inf] * 3, n
-        cols = list(zip(*(d for _, d in self.window), strict=True))
-        mean = [math.fsum(c) / n for c in cols]
-        sd = [statistics.pstdev(c, m) for c, m in zip(cols, mean, strict=True)]
-        return mean, [s / math.sqrt(n) for s in sd], n
+        """(mean, σ of the mean, n) of the window's differences (compiled: imu_window)."""
+        return mean_and_sigma(self.window)
 
 
 @dataclass

@@ -49,6 +49,19 @@ def const(
 
 
 def reason_of(f: dataclasses.Field[Any]) -> Reason | None:
-    """The :class:`Reason` of a field made by :func:`const`, else None."""
-    r = f.metadata.get("reason")
-    return r if isinstance(r, Reason) else None
+    """The :class:`Reason` of a field made by :func:`const`, or of one whose metadata is
+    plain strings (``{"unit": ..., "source": "kind: detail", "reason": ...}``, the kind
+    one of :data:`SOURCES`); else None."""
+    meta = f.metadata
+    r = meta.get("reason")
+    if isinstance(r, Reason):
+        return r
+    if isinstance(r, str) and isinstance(meta.get("source"), str):
+        kind, _, detail = meta["source"].partition(":")
+        kind = kind.strip()
+        for source in SOURCES:
+            if kind == source:
+                text = f"{r} ({detail.strip()})" if detail.strip() else r
+                unit = str(meta.get("unit", ""))
+                return Reason(unit, source, text, bool(meta.get("sensitivity", False)))
+    return None

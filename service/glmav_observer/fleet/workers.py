@@ -448,10 +448,18 @@ def worker_specs(
     claim: bool = False,
     force: bool = False,
 ) -> list[WorkerSpec]:
-    """One spec per worker; raises WorkerError for a Rerun mode workers cannot share."""
+    """One spec per worker; raises WorkerError for a Rerun mode workers cannot share, or
+    ``--mavlink-out`` (one sender per link: every worker opened it, the second found the
+    port taken and serve said another process held it)."""
     level = logging.getLevelName(logging.getLogger().getEffectiveLevel())
     mode = rerun_mode if rerun_mode is not None else config.rerun.mode
     worker_rerun_mode(mode, 0)  # checks it
+    if workers > 1 and config.mavlink_out.enabled:
+        raise WorkerError(
+            f"--mavlink-out {config.mavlink_out.link}: one sender per link needs one "
+            "process; use --workers 1 (serve's choice with --mavlink-out when --workers "
+            "is not given)"
+        )
     path = out if out is not None else (config.out or None)
     return [
         WorkerSpec(

@@ -157,6 +157,8 @@ class VehicleInput:
     newest_t_s: float | None = None
     #: samples are withheld from estimation: two sources share the system id
     conflict: bool = False
+    #: host time this vehicle was last reported heard to a shared admission
+    t_admission_s: float = float("-inf")
 
     def input_counters(self) -> collections.Counter[str]:
         """What this vehicle's input counted (a bound method, not a closure: a copy of the
@@ -166,11 +168,19 @@ class VehicleInput:
 
 class Admission(Protocol):
     """Who else counts against ``max_vehicles`` (the other workers of one service:
-    :class:`~glmav_observer.fleet.admission.SharedAdmission`)."""
+    :class:`~glmav_observer.fleet.admission.SharedAdmission`). ``admit`` may take the
+    slot of a vehicle of any worker idle for ``evict_idle_s`` (and says whose); ``heard``
+    keeps a vehicle's slot fresh and says False when another worker took it."""
 
     def acquire(self, sysid: int) -> bool: ...
 
+    def admit(
+        self, sysid: int, t_host_s: float | None = None, evict_idle_s: float | None = None
+    ) -> tuple[bool, int | None]: ...
+
     def release(self, sysid: int) -> None: ...
+
+    def heard(self, sysid: int, t_host_s: float) -> bool: ...
 
 
 class Ingest:
@@ -191,7 +201,13 @@ class Ingest:
     def _new_vehicle(self, sysid: int, compid: int, t_host_s: float) -> VehicleInput | None:
         cfg = self.config
         shared = self.admission
-        admitted = shared is None or shared.acquire(sysid)
+        admitted, taken = (
+            (True, None) if shared is None else shared.admit(sysid, t_host_s, cfg.evict_idle_s)
+        )
+        if taken is not None and taken in self.vehicles:  # our own idle vehicle's slot
+            del self.vehicles[taken]
+            self.counters["evicted"] += 1
+            logger.warning("vehicle evicted", extra={"sysid": taken, "new_sysid": sysid})
         if len(self.vehicles) >= cfg.max_vehicles or not admitted:
             # the cap (of this ingest, or of the service's workers together): an idle
             # vehicle of ours makes room, else the new one is dropped
@@ -206,7 +222,7 @@ class Ingest:
             logger.warning("vehicle evicted", extra={"sysid": idle.sysid, "new_sysid": sysid})
             if shared is not None:
                 shared.release(idle.sysid)
-                if not admitted and not shared.acquire(sysid):  # another worker was faster
+                if not admitted and not shared.admit(sysid, t_host_s)[0]:  # another was faster
                     self.counters["vehicle_cap_dropped"] += 1
                     return None
         counters: collections.Counter[str] = collections.Counter()
@@ -230,6 +246,29 @@ class Ingest:
         logger.info("new vehicle", extra={"sysid": sysid, "compid": compid})
         return v
 
+    def _slot_kept(self, v: VehicleInput, t_host_s: float) -> bool:
+        """With a shared admission: tell it the vehicle is heard (at most every half
+        ``evict_idle_s``, and at once after a silence that long), and whether its slot is
+        still its own: another worker takes the slot of a vehicle idle for
+        ``evict_idle_s``, as one process evicts it for a newcomer."""
+        shared = self.admission
+        if shared is None:
+            return True
+        period = min(1.0, 0.5 * self.config.evict_idle_s)
+        if t_host_s - v.t_admission_s < period and t_host_s - v.t_host_last_s < period:
+            return True
+        v.t_admission_s = t_host_s
+        return shared.heard(v.sysid, t_host_s)
+
+    def _slot_lost(self, sysid: int) -> list[IngestEvent]:
+        """The vehicle's slot went to another worker's newcomer while it was idle: it is
+        evicted here too (and comes back as a new vehicle if a slot is free)."""
+        del self.vehicles[sysid]
+        self.counters["evicted"] += 1
+        logger.warning("vehicle evicted: its slot went to another worker's vehicle",
+                       extra={"sysid": sysid})  # fmt: skip
+        return [VehicleEvicted(sysid)]
+
     def skip_superseded(
         self, sysid: int, compid: int, msgid: int, t_raw: int, t_host_s: float
     ) -> bool:
@@ -242,7 +281,7 @@ class Ingest:
         if v is None or compid != v.compid or v.imu_source is None:
             return False
         name = IMU_MESSAGE_IDS[msgid]
-        if _IMU_SOURCE[name] >= v.imu_source:
+        if _IMU_SOURCE[name] >= v.imu_source or not self._slot_kept(v, t_host_s):
             return False
         kind = _IMU_TIME_KIND[name]
         t_us = t_raw * 1000 if kind is TIME_BOOT_MS else t_raw
@@ -270,12 +309,15 @@ class Ingest:
             return self._other(name, msg, v)
         events: list[IngestEvent] = []
         compid = int(msg.get_srcComponent())
+        if v is not None and compid == v.compid and not self._slot_kept(v, t_host_s):
+            events = self._slot_lost(sysid)
+            v = None
         if v is None:
             before = set(self.vehicles)
             v = self._new_vehicle(sysid, compid, t_host_s)
-            if v is None:
-                return []
             events.extend(VehicleEvicted(s) for s in before - set(self.vehicles))
+            if v is None:
+                return events
             events.append(NewVehicle(sysid, compid))
         elif compid != v.compid:
             v.counters["other_component"] += 1
@@ -346,6 +388,10 @@ class Ingest:
             self.counters["ignored_messages"] += 1
             return []
         compid = int(msg.get_srcComponent())
+        lost: list[IngestEvent] = []
+        if v is not None and compid == v.compid and not self._slot_kept(v, t_host_s):
+            lost = self._slot_lost(sysid)
+            v = None
         if v is not None:
             if compid == v.compid:
                 v.t_host_last_s = t_host_s
@@ -355,10 +401,10 @@ class Ingest:
             return []
         before = set(self.vehicles)
         v = self._new_vehicle(sysid, compid, t_host_s)
+        events: list[IngestEvent] = lost + [VehicleEvicted(s) for s in before - set(self.vehicles)]
         if v is None:
-            return []
+            return events
         v.counters["heartbeat"] += 1
-        events: list[IngestEvent] = [VehicleEvicted(s) for s in before - set(self.vehicles)]
         events.append(NewVehicle(sysid, compid))
         return events
 

@@ -61,6 +61,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from glmav_sitl.gcs import telemetry
 from glmav_sitl.gcs.autopilot import Autopilot, Mode
 from glmav_sitl.gcs.params import ParamError, ParamTable, default_params
+from glmav_sitl.mavlink.frame import StreamWriter
 from glmav_sitl.mavlink.links import Link
 from glmav_sitl.mavlink.servo import servo_pwm_us
 from glmav_sitl.scenario import STREAM_IDS
@@ -77,14 +78,6 @@ CMD_REQUEST_MESSAGE = 512
 CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
 _MAVLINK_EPOCH_UNIX_S = 1420070400  # 2015-01-01, origin of signing timestamps
 _EARTH_RADIUS_M = 6378137.0
-_I16 = 32767
-
-
-def _i16(x: float) -> int:
-    if not math.isfinite(x):
-        return 0
-    v = round(x)
-    return -_I16 if v < -_I16 else (_I16 if v > _I16 else v)
 
 
 @dataclass
@@ -162,6 +155,8 @@ class MavlinkVehicle:
         self.start_unix_us = round(sim.sitl.start_unix_s * 1e6)
         self.out = _Fanout(links, tlog)
         self.mav = mavlink2.MAVLink(self.out, srcSystem=sysid, srcComponent=compid)
+        #: the sensor streams' packets, packed and framed in C (one sequence with mav)
+        self.streams = StreamWriter(self.mav, links, tlog)
         self.signing_key = signing_key
         if signing_key is not None:
             if len(signing_key) != 32:
@@ -219,12 +214,19 @@ class MavlinkVehicle:
         return 0 if rate_hz <= 0.0 else max(1, round(1e6 / rate_hz))
 
     # ------------------------------------------------------------------ output
-    def _send(self, msg: Any) -> None:
+    def _stamp(self) -> int:
+        """The tlog stamp of a packet sent now (us); with signing, the signing clock
+        brought up to the sim clock."""
         t_us = self.sim.t_us
-        self.out.stamp_us = self.start_unix_us + t_us
+        stamp_us: int = self.start_unix_us + t_us
+        self.out.stamp_us = stamp_us
         if self.signing_key is not None:
             ts = (self.start_unix_us // 1_000_000 - _MAVLINK_EPOCH_UNIX_S) * 100_000 + t_us // 10
             self.mav.signing.timestamp = max(self.mav.signing.timestamp, ts)
+        return stamp_us
+
+    def _send(self, msg: Any) -> None:
+        self._stamp()
         self.mav.send(msg)
 
     def poll_streams(self) -> None:
@@ -233,19 +235,26 @@ class MavlinkVehicle:
         if t_us < self._next_any_us:
             return
         nxt = 1 << 62
+        interval_us, next_due_us = self.interval_us, self.next_due_us
         for name in self._order:
-            iv = self.interval_us[name]
+            iv = interval_us[name]
             if iv <= 0:
                 continue
-            due = self.next_due_us[name]
+            due = next_due_us[name]
             if t_us >= due:
                 self.emit(name)
                 due += iv
                 if due <= t_us:  # fell behind (rate above the step rate): skip, do not burst
                     due = t_us + iv
-                self.next_due_us[name] = due
+                next_due_us[name] = due
             nxt = min(nxt, due)
         self._next_any_us = nxt
+
+    @property
+    def next_stream_us(self) -> int:
+        """When :meth:`poll_streams` next has something to send (sim time, us; at or
+        before now: at the next poll)."""
+        return self._next_any_us
 
     def set_interval(self, name: str, interval_us: int) -> None:
         self.interval_us[name] = interval_us
@@ -284,60 +293,25 @@ class MavlinkVehicle:
         elif name in ("raw_imu", "scaled_imu", "highres_imu"):
             gyro, acc = sim.imu.sample(tr.t_s, tr.omega_body_radps, self._specific_force(tr), rate)
             if name == "highres_imu":
-                msg = mavlink2.MAVLink_highres_imu_message(
-                    t_us,
-                    acc[0],
-                    acc[1],
-                    acc[2],
-                    gyro[0],
-                    gyro[1],
-                    gyro[2],
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0x3F,
-                )
+                self.streams.highres_imu(self._stamp(), t_us, gyro, acc)
             elif name == "raw_imu":
                 c = sim.sensor_config.imu
                 ka, kg = 1.0 / c.raw_accel_lsb_mps2, 1.0 / c.raw_gyro_lsb_radps
-                msg = mavlink2.MAVLink_raw_imu_message(
-                    t_us,
-                    _i16(acc[0] * ka),
-                    _i16(acc[1] * ka),
-                    _i16(acc[2] * ka),
-                    _i16(gyro[0] * kg),
-                    _i16(gyro[1] * kg),
-                    _i16(gyro[2] * kg),
-                    0,
-                    0,
-                    0,
-                )
+                self.streams.raw_imu(self._stamp(), t_us, gyro, acc, ka, kg)
             else:
-                ka = 1000.0 / 9.80665  # mG
-                msg = mavlink2.MAVLink_scaled_imu_message(
-                    t_ms,
-                    _i16(acc[0] * ka),
-                    _i16(acc[1] * ka),
-                    _i16(acc[2] * ka),
-                    _i16(gyro[0] * 1000.0),
-                    _i16(gyro[1] * 1000.0),
-                    _i16(gyro[2] * 1000.0),
-                    0,
-                    0,
-                    0,
-                )
+                self.streams.scaled_imu(self._stamp(), t_ms, gyro, acc)
+            self.stats.sent[name] += 1
+            return
         elif name == "attitude":
             eul, w = sim.attitude_sensor.sample(tr.euler_rad, tr.omega_body_radps, rate)
-            msg = mavlink2.MAVLink_attitude_message(t_ms, eul[0], eul[1], eul[2], w[0], w[1], w[2])
+            self.streams.attitude(self._stamp(), t_ms, eul, w)
+            self.stats.sent[name] += 1
+            return
         elif name == "local_position_ned":
             pos, vel = sim.position_sensor.sample(tr.t_s, tr.p_ned_m, tr.v_ned_mps)
-            msg = mavlink2.MAVLink_local_position_ned_message(
-                t_ms, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2]
-            )
+            self.streams.local_position_ned(self._stamp(), t_ms, pos, vel)
+            self.stats.sent[name] += 1
+            return
         elif name == "servo_output_raw":
             pwm = servo_pwm_us(sim.u, sim.params)  # the command: glmav_sitl.mavlink.servo
             msg = mavlink2.MAVLink_servo_output_raw_message(
@@ -355,31 +329,25 @@ class MavlinkVehicle:
             v = tr.v_ned_mps
             sc = sim.sensor_config
             k = sc.noise_scale if sc.noise else 0.0
-            msg = mavlink2.MAVLink_sim_state_message(
-                q[0],
-                q[1],
-                q[2],
-                q[3],
-                e[0],
-                e[1],
-                e[2],
-                f[0],
-                f[1],
-                f[2],
-                w[0],
-                w[1],
-                w[2],
-                lat,
-                lon,
-                self._alt0 - tr.p_ned_m[2],
-                sc.position_sigma_m * k,
-                sc.position_sigma_m * k,
-                v[0],
-                v[1],
-                v[2],
+            self.streams.sim_state(
+                self._stamp(),
+                (
+                    *q,
+                    *e,
+                    *f,
+                    *w,
+                    lat,
+                    lon,
+                    self._alt0 - tr.p_ned_m[2],
+                    sc.position_sigma_m * k,
+                    sc.position_sigma_m * k,
+                    *v,
+                ),
                 round(lat * 1e7),
                 round(lon * 1e7),
             )
+            self.stats.sent[name] += 1
+            return
         elif name in telemetry.GCS_STREAMS and self.autopilot is not None:
             msg = telemetry.message(name, sim, tr, self.autopilot)
         else:

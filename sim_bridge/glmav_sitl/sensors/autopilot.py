@@ -40,7 +40,7 @@ import numpy as np
 
 from glmav_sitl.dynamics.frames import euler_from_quat, rotate_body_to_ned, rotate_ned_to_body
 from glmav_sitl.scenario import AutopilotProfileConfig, Fault, SensorConfig, filter_delay_s
-from glmav_sitl.sensors.models import ImuModel, PositionVelocitySensor
+from glmav_sitl.sensors.models import FastImu, ImuModel, PositionVelocitySensor
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -101,20 +101,16 @@ class AutopilotSensors:
         )
         self.imu_model = ImuModel(fast, r_imu, faults)
         self._next_imu_us = self.imu_interval_us
-        self._v_prev: Vec3 = v0_ned_mps
-        self.gyro_radps: Vec3 = (0.0, 0.0, 0.0)  # the latest fast sample
-        self.accel_mps2: Vec3 = rotate_ned_to_body(q0, (0.0, 0.0, -g_mps2))
         # vibration of (accel x, y, z, gyro x, y, z): a sum over rotors r and harmonics h of
         # (Omega_r / Omega_trim)^2 (c_sin sin(h phi_r) + c_cos cos(h phi_r)), i.e. an
         # amplitude and a seeded phase per axis
-        self._phase = [0.0, 0.0]
-        self._trim2 = (
+        trim2 = (
             1.0 / max(rotor_trim_radps[0], 1.0) ** 2,
             1.0 / max(rotor_trim_radps[1], 1.0) ** 2,
         )
         amp = [v * noise for v in (*cfg.vibration_accel_mps2, *cfg.vibration_gyro_radps)]
         # per rotor: (harmonic, coefficients of sin(h phi) for the 6 axes, of cos(h phi))
-        self._vib: list[list[tuple[float, tuple[float, ...], tuple[float, ...]]]] = []
+        vib: list[list[tuple[float, tuple[float, ...], tuple[float, ...]]]] = []
         for _rotor in range(2):
             terms = []
             for h, w in zip(cfg.vibration_harmonics, cfg.vibration_harmonic_weights, strict=True):
@@ -126,15 +122,24 @@ class AutopilotSensors:
                         tuple(w * a * math.sin(p) for a, p in zip(amp, psi, strict=True)),
                     )
                 )
-            self._vib.append(terms)
-        self._vib_on = any(v != 0.0 for v in amp) and any(
+            vib.append(terms)
+        vib_on = any(v != 0.0 for v in amp) and any(
             w != 0.0 for w in cfg.vibration_harmonic_weights
+        )
+        #: the fast samples (compiled): the latest in ``gyro_radps``, ``accel_mps2``
+        self.fast = FastImu(
+            self.imu_model,
+            g_mps2,
+            self.imu_interval_us,
+            v0_ned_mps,
+            trim2,
+            vib,
+            vib_on,
+            rotate_ned_to_body(q0, (0.0, 0.0, -g_mps2)),
         )
         # --- attitude estimator
         self.ahrs_interval_us = max(self.imu_interval_us, round(1e6 / cfg.ahrs_rate_hz))
         self._next_ahrs_us = self.ahrs_interval_us
-        self._sum = [0.0] * 6
-        self._n_sum = 0
         self.q_est: Quat = q0
         self.euler_est_rad: Vec3 = euler_from_quat(*q0)
         cs = (cfg.gyro_cal_sigma_radps, cfg.accel_cal_sigma_mps2)
@@ -185,7 +190,7 @@ class AutopilotSensors:
             self._next_imu_us = t_us + self.imu_interval_us
         q = (x[6], x[7], x[8], x[9])
         v_ned = rotate_body_to_ned(q, (x[3], x[4], x[5]))
-        self._fast_imu(t_us, q, v_ned, (x[10], x[11], x[12]), (x[13], x[14]))
+        self.fast.sample(t_us, x[6], x[7], x[8], x[9], v_ned, (x[10], x[11], x[12]), x[13], x[14])
         self._hist.append((t_us, (x[0], x[1], x[2]), v_ned))
         if t_us >= self._next_gps_us:
             self._gps_fix(t_us)
@@ -193,52 +198,6 @@ class AutopilotSensors:
         if t_us >= self._next_ahrs_us:
             self._next_ahrs_us = max(self._next_ahrs_us + self.ahrs_interval_us, t_us + 1)
             self._ahrs(q)
-
-    def _fast_imu(
-        self,
-        t_us: int,
-        q: Quat,
-        v_ned: Vec3,
-        omega: Vec3,
-        rotor_radps: tuple[float, float],
-    ) -> None:
-        ti = self.imu_interval_us / 1e6
-        vp = self._v_prev
-        self._v_prev = v_ned
-        f_ned = (
-            (v_ned[0] - vp[0]) / ti,
-            (v_ned[1] - vp[1]) / ti,
-            (v_ned[2] - vp[2]) / ti - self.g_mps2,
-        )
-        f_body = rotate_ned_to_body(q, f_ned)
-        gyro, acc = self.imu_model.sample_fast(t_us / 1e6, omega, f_body, self.imu_rate_hz)
-        ax, ay, az = acc
-        gx, gy, gz = gyro
-        if self._vib_on:
-            for r in range(2):
-                w_r = rotor_radps[r]
-                ph = (self._phase[r] + w_r * ti) % (2.0 * math.pi)
-                self._phase[r] = ph
-                s2 = w_r * w_r * self._trim2[r]
-                for h, cs, cc in self._vib[r]:
-                    sn = math.sin(h * ph) * s2
-                    cn = math.cos(h * ph) * s2
-                    ax += cs[0] * sn + cc[0] * cn
-                    ay += cs[1] * sn + cc[1] * cn
-                    az += cs[2] * sn + cc[2] * cn
-                    gx += cs[3] * sn + cc[3] * cn
-                    gy += cs[4] * sn + cc[4] * cn
-                    gz += cs[5] * sn + cc[5] * cn
-        self.accel_mps2 = (ax, ay, az)
-        self.gyro_radps = (gx, gy, gz)
-        s = self._sum
-        s[0] += ax
-        s[1] += ay
-        s[2] += az
-        s[3] += gx
-        s[4] += gy
-        s[5] += gz
-        self._n_sum += 1
 
     def _gps_fix(self, t_us: int) -> None:
         t_want = t_us - self.gps_delay_us
@@ -285,17 +244,14 @@ class AutopilotSensors:
         )
 
     def _ahrs(self, q_true: Quat) -> None:
-        n = self._n_sum
+        s, n = self.fast.take_sums()
         if n == 0:
             return
-        s = self._sum
         inv = 1.0 / n
         ac = self.accel_cal_mps2
         fm = (s[0] * inv - ac[0], s[1] * inv - ac[1], s[2] * inv - ac[2])
         b = self.gyro_bias_est_radps
         w = (s[3] * inv - b[0], s[4] * inv - b[1], s[5] * inv - b[2])
-        self._sum = [0.0] * 6
-        self._n_sum = 0
         cfg = self.cfg
         t = self.ahrs_interval_us / 1e6
         qe = self.q_est
@@ -351,7 +307,7 @@ class AutopilotSensors:
 
     # ------------------------------------------------ the MAVLink side's sample calls
     def imu_sample(self) -> tuple[Vec3, Vec3]:
-        return self.gyro_radps, self.accel_mps2
+        return self.fast.gyro_radps, self.fast.accel_mps2
 
     def position_sample(self, t_s: float) -> tuple[Vec3, Vec3]:
         pf, vf = self.p_filt_ned_m, self.v_filt_ned_mps

@@ -138,6 +138,11 @@ def test_a_tcp_stream_is_split_into_frames_for_the_workers(
         (["--workers", "0"], "argument --workers: 0 workers: must be 1..256"),
         (["--claim", "--no-zenoh", "--workers", "1"], "glmav-observer serve: --claim needs Zenoh"),
         (["--claim", "--no-zenoh"], "glmav-observer serve: --claim needs Zenoh"),
+        # every worker opened it; the second said "already taken by another process"
+        (
+            ["--mavlink-out", "udpin:127.0.0.1:14557"],
+            "--mavlink-out udpin:127.0.0.1:14557: one sender per link needs one process",
+        ),
     ],
 )
 def test_bad_worker_options_exit_2_with_the_reason(

@@ -1,5 +1,6 @@
 """Real ArduSub logs recorded by others (tests/data/real-tlogs): replay without a crash,
-every rejected frame counted, estimates consistent with the vehicle's own velocity."""
+every rejected frame counted, estimates consistent with the vehicle's own velocity; the
+log without a velocity measurement is refused by ``replay``, naming it."""
 
 from __future__ import annotations
 
@@ -7,8 +8,12 @@ import bisect
 import math
 from pathlib import Path
 
+import pytest
+
 from glmav_observer.app_replay import replay_tlog
+from glmav_observer.cli import main as cli_main
 from glmav_observer.config import load_config
+from glmav_observer.ingest.logfiles.tlog import check_tlog
 from glmav_observer.records import MeasurementRecord, VelocityRecord
 from glmav_testkit.sitl_live import MemorySink
 
@@ -53,7 +58,39 @@ def test_corrupt_log_replays_with_every_rejected_frame_counted(real_tlogs: Path)
     assert s.messages == 50_136
     v = s.vehicles[1]
     # this disarmed vehicle sends no LOCAL_POSITION_NED: nothing to estimate, no crash,
-    # its samples are counted
+    # its samples are counted (``replay`` refuses it: the next test)
     assert v.counters["rx_ATTITUDE"] == 6210
     assert v.counters["rx_RAW_IMU"] == 627
     assert s.records == 0
+
+
+def test_replay_refuses_the_log_without_a_velocity_measurement_and_writes_nothing(
+    real_tlogs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = real_tlogs / "ardusub_2023-04-18.tlog"
+    out = tmp_path / "out.jsonl"
+    assert cli_main(["replay", str(log), "--out", str(out), "--no-progress"]) == 2
+    printed = capsys.readouterr()
+    # ATTITUDE and RAW_IMU are there (counted above); GLOBAL_POSITION_INT is not taken
+    assert printed.err == (
+        f"glmav-observer replay: {log}: unsupported: this log has no velocity measurement "
+        "(LOCAL_POSITION_NED)\n"
+    )
+    assert printed.out == "" and not out.exists()
+
+
+def test_the_check_stops_early_and_the_replay_uses_its_frames_once(real_tlogs: Path) -> None:
+    log = real_tlogs / "ardusub_small.tlog"
+    scan = check_tlog(log)
+    # QGroundControl's log: ATTITUDE, RAW_IMU and LOCAL_POSITION_NED within its first
+    # 3,582 of 1,510,263 bytes: the check decodes 0.2 % of the log
+    assert scan.complete_vehicle == 1 and scan.scanned_bytes == 3582
+    a, b = MemorySink(), MemorySink()
+    with_scan = replay_tlog(log, load_config(None), [a], scan=scan)
+    without = replay_tlog(log, load_config(None), [b])
+    # the frames the check decoded are replayed once: the same counts, the same records
+    assert with_scan.link_counters == without.link_counters
+    assert next(iter(with_scan.link_counters.values()))["frames_ok"] == 35_912
+    assert with_scan.messages == without.messages == 35_912
+    assert len(a.records) > 1000
+    assert [r.to_dict() for r in a.records] == [r.to_dict() for r in b.records]

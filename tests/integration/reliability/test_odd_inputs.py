@@ -60,13 +60,26 @@ def odd_configs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Pat
     }
 
 
+#: serve's default worker mode (no --workers: one per usable core) and one worker
+WORKER_MODES = {"default-workers": [], "one-worker": ["--workers", "1"]}
+
+
+@pytest.mark.parametrize("workers", list(WORKER_MODES))
 @pytest.mark.parametrize("kind", ["device", "fifo", "bom", "deep"])
 def test_odd_config_files_are_exit_2_with_the_reason(
-    kind: str, odd_configs: dict[str, tuple[Path, str]]
+    kind: str, workers: str, odd_configs: dict[str, tuple[Path, str]]
 ) -> None:
     path, reason = odd_configs[kind]
     for cmd in (
-        [OBS, "serve", "--config", str(path), "--link", "udpin:127.0.0.1:9"],
+        [
+            OBS,
+            "serve",
+            "--config",
+            str(path),
+            "--link",
+            "udpin:127.0.0.1:9",
+            *WORKER_MODES[workers],
+        ],
         [SITL, "run", "--config", str(path), "--duration", "1"],
     ):
         proc = _run(*cmd)
@@ -75,10 +88,12 @@ def test_odd_config_files_are_exit_2_with_the_reason(
         assert "Traceback" not in proc.stderr
 
 
-def test_a_signing_key_file_that_is_a_device_is_refused(tmp_path: Path) -> None:
+@pytest.mark.parametrize("workers", list(WORKER_MODES))
+def test_a_signing_key_file_that_is_a_device_is_refused(workers: str, tmp_path: Path) -> None:
     config = tmp_path / "service.toml"
     config.write_text('[security]\nsigning_key_file = "/dev/zero"\n', encoding="utf-8")
-    proc = _run(OBS, "serve", "--config", str(config), "--link", "udpin:127.0.0.1:9")
+    proc = _run(OBS, "serve", "--config", str(config), "--link", "udpin:127.0.0.1:9",
+                *WORKER_MODES[workers])  # fmt: skip
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert (
         f"{config}: security.signing_key_file: cannot read /dev/zero: is a device, not a "

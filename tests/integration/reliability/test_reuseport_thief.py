@@ -144,3 +144,37 @@ def test_the_guard_sees_a_socket_that_joined_the_group(free_udp_port: Callable[[
         for s in socks:
             s.close()
     assert guard.check() == []
+
+
+@pytest.mark.timeout(120)
+def test_a_same_user_thief_cannot_join_the_one_worker_port(
+    free_udp_port: Callable[[], int],
+) -> None:
+    """D3 with ``--workers 1``: the one process binds its port without ``SO_REUSEPORT``,
+    so the same thief is refused at its bind and every datagram reaches the service."""
+    port = free_udp_port()
+    serve = subprocess.Popen(
+        [OBS, "serve", "--workers", "1", "--link", f"udpin:127.0.0.1:{port}", "--no-zenoh"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    mav1 = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    try:
+        wait_bound_udp(port, serve)
+        thief = subprocess.run(
+            [sys.executable, "-c", THIEF, str(port), "0"],
+            capture_output=True, text=True, timeout=60, check=False,
+        )  # fmt: skip
+        assert thief.returncode != 0 and "Address already in use" in thief.stderr
+        assert "joined" not in thief.stdout
+        for k in range(500):
+            tx.sendto(_attitude(mav1, k), ("127.0.0.1", port))
+            time.sleep(0.002)
+        time.sleep(0.5)  # loopback delivery is immediate; the margin is for a loaded host
+    finally:
+        tx.close()
+        serve.send_signal(signal.SIGINT)
+        stdout, stderr = serve.communicate(timeout=60)
+    assert serve.returncode == 0, stderr[-3000:]
+    assert re.search(r"frames_ok=500\b", stdout), stdout[-3000:]
+    assert "foreign_sockets_on_port" not in stdout

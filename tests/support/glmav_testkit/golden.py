@@ -307,7 +307,7 @@ def _diff_float(a: float | None, b: float | None) -> float:
 
 #: event fields that are floats other than times (compared within the tolerance given)
 _EVENT_FLOATS = {"jump_mps"}
-_EVENT_VECTORS = {"bias_body_mps2"}
+_EVENT_VECTORS = {"bias_body_mps2", "bias_sigma_mps2"}
 
 
 def _event_diff(

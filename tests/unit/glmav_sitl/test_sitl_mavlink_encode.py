@@ -44,7 +44,7 @@ def test_raw_imu_scaling_round_trips_within_half_an_lsb() -> None:
     for m in raw:
         assert m.zacc * c.raw_accel_lsb_mps2 == pytest.approx(-9.81, abs=0.3 + 0.2 * 4)
     # exact round trip of the quantiser: decode(encode(x)) within half an LSB
-    from glmav_sitl.mavlink.vehicle import _i16
+    from glmav_sitl.mavlink.frame import i16 as _i16
 
     for x in (-9.81, 0.01234, 3.3, -0.0004):
         q = _i16(x / c.raw_accel_lsb_mps2) * c.raw_accel_lsb_mps2

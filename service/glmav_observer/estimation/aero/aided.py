@@ -68,7 +68,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -146,6 +146,19 @@ class AidedAxisConfig:
     #: residual is judged, s (one white correlation time: a slope fitted to less is one
     #: correlated blob)
     scatter_trend_min_s: float = 1.0
+    #: a pseudo-measurement whose σ exceeds this is not made (``DragModel.
+    #: pseudo_measurement``'s ``sigma_max_mps``), m/s. Off (∞): the filter weighs each by
+    #: its σ (R, inflated by the correlation times) and rule 5 refuses one that cannot
+    #: beat dead reckoning; a cap of 1 m/s refused every pseudo-measurement in a hover in
+    #: turbulence, whose average is what the floor shows possible (issue 32)
+    pm_sigma_max_mps: float = field(
+        default=math.inf,
+        metadata={
+            "unit": "m/s",
+            "source": "requirement",
+            "reason": "a pseudo-measurement less certain than this is not made",
+        },
+    )
 
 
 class AidedState(NamedTuple):
@@ -290,6 +303,7 @@ class AidedAxis:
             E,
             np.asarray(v_meas_ned_mps),
             self.lost_axis,
+            sigma_max_mps=self.config.pm_sigma_max_mps,
             control=control,
         )
         pm = self.last_pm

@@ -164,7 +164,10 @@ def steady_state(m: FloorModel, *, healthy: bool = False) -> FloatArray:
     well (``healthy``: the hand-over) or through the drag alone (the lost axis's floor)."""
     phi, q = discrete_model(m)
     h, r = measurement_model(m, healthy)
-    p = np.diag([m.velocity_sigma_mps**2, 1.0, m.turbulence_sigma_mps**2])
+    # without a bias random walk the bias is a constant that the infinite past has
+    # pinned (P_bb = 0: a 1/n decay would never pass the convergence test)
+    p_bb0 = 1.0 if m.accel_bias_random_walk > 0.0 else 0.0
+    p = np.diag([m.velocity_sigma_mps**2, p_bb0, m.turbulence_sigma_mps**2])
     p_check = p
     for n in range(1, _MAX_STEPS + 1):
         p, _ = kalman_update(phi @ p @ phi.T + q, h, r)

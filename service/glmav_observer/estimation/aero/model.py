@@ -55,7 +55,8 @@ residual exceeds 5σ is not learnt (a GPS glitch) unless 25 come in a row.
 
 **Its own tests.** Per body row (:meth:`DragModel.trusted_rows`): enough data (effective
 sample count), enough excitation (spread of the body-frame speed r_j·v ≥ 0.3 m/s), a
-residual spread small enough to be useful (σ_f,j ≤ 0.15 m/s²) and k_j clearly positive
+residual spread below ``sigma_f_max_mps2`` (off by default since issue 32: σ_f sets the
+pseudo-measurement's σ, which the aided filter weighs) and k_j clearly positive
 (k_j ≥ 5σ(k_j)); only passing rows are used. Both rows refuse themselves while the
 model is *changing*: more than 5 samples (exponentially weighted over 5 s) that a model
 which had passed these tests could not explain at 5σ (a wind change, a payload; on
@@ -71,7 +72,9 @@ agree within 3σ; if they disagree in > 20 % of recent calls the model is
 
 **Pseudo-measurement** (:meth:`DragModel.pseudo_measurement`): with the two measured earth
 axes known, each passing body row (A1) gives s_j (the root of the quadratic on the sign
-branch of the linear solution) and so the lost axis L:
+branch of the linear solution; where a fitted q_j < 0 leaves the drag non-monotone there,
+k_j + 2q_j|s_j| ≤ 0, the linear part's s_j = a_j/k_j: ``quadratic_fallback_linear``) and
+so the lost axis L:
 
     v_L,j = (s_j − Σ_{i≠L} r_j,i v_i) / r_j,L
 
@@ -80,7 +83,9 @@ the two rows are combined by inverse-variance weighting. None when no row passes
 is not observable at this attitude (|r_j,L| < ``row_min``: a level vehicle cannot see d
 through horizontal drag), the axis is not in ``aided_axes`` (d is not, by default: the
 benchmark's numbers in ``docs/benchmarks/aero.md``), its validation has not passed, or σ
-exceeds ``sigma_max_mps``.
+exceeds ``sigma_max_mps`` (the aided filter passes ``AidedAxisConfig.pm_sigma_max_mps``,
+∞ by default: in a hover in gusts each pseudo-measurement's σ is 2-4 m/s, their average
+what the floor shows useful).
 
 The lost axis's filter and the calls from the estimator: the package docstring
 (:mod:`glmav_observer.estimation.aero`) and :mod:`.aided`.
@@ -92,7 +97,7 @@ operations on 5-vectors per body axis plus a pseudo-measurement every 5th call.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from operator import mul
 from typing import NamedTuple
 
@@ -136,9 +141,13 @@ class DragModelConfig:
     speed_spread_min_mps: float = 0.3
     #: k_j / σ(k_j) at least this (k clearly > 0)
     k_z_min: float = 5.0
-    #: σ_f,j at most this, m/s² (a model that explains little is refused: at k ≈ 0.25 1/s
-    #: σ_f = 0.15 m/s² is already 0.6 m/s per row)
-    sigma_f_max_mps2: float = 0.15
+    #: σ_f,j at most this, m/s² (a model that explains little is refused). Off (∞) by
+    #: default: σ_f already sets the pseudo-measurement's σ (σ_f/k per row), which the
+    #: aided filter weighs and rule 5 refuses when no better than dead reckoning; a fixed
+    #: 0.15 refused every hover in turbulence, where σ_f is the gusts' drag (0.24-0.49
+    #: m/s² in glmav-sitl's `gusts`) while the average of many pseudo-measurements still
+    #: carries the airspeed (issue 32: the floor)
+    sigma_f_max_mps2: float = math.inf
     #: a sample whose one-step residual exceeds this many σ is not learnt (a GPS glitch)...
     outlier_sigma: float = 5.0
     #: ...unless this many come in a row (the vehicle changed: learn it, σ_f grows)
@@ -198,6 +207,30 @@ class DragModelConfig:
     #: prior's) and still has to pass the k test (k ≥ k_z_min σ(k)). None (default):
     #: uninformed (σ prior_sigma_theta[1] around 0), the model bit for bit as without it
     prior_k: tuple[float, float] | None = None
+    #: validation (module docstring) compares pseudo-measurements up to this σ, m/s: its
+    #: z² is normalised by σ, so a large σ is as testable as a small one; capped (at the
+    #: aiding's own 1 m/s) no validation accumulates where each pseudo-measurement is
+    #: noisy (hover in turbulence, where only their average carries information)
+    #: where a fitted q < 0 makes a row's drag non-monotone (k + 2q|s| ≤ 0 at the root:
+    #: drag dissipates, so q < 0 is an artefact of a fit on low speeds, e.g. a hover) the
+    #: row uses its linear part alone instead of giving nothing. False: such a row is
+    #: skipped (in glmav-sitl's `gusts` hover that was 95 % of the pseudo-measurements)
+    quadratic_fallback_linear: bool = field(
+        default=True,
+        metadata={
+            "unit": "bool",
+            "source": "physics: drag dissipates energy, q ≥ 0",
+            "reason": "a negative fitted q leaves no root: use the linear part",
+        },
+    )
+    validate_sigma_max_mps: float = field(
+        default=math.inf,
+        metadata={
+            "unit": "m/s",
+            "source": "statistic: z² is normalised by σ",
+            "reason": "validate the noisy pseudo-measurements that the aiding averages",
+        },
+    )
 
 
 class PseudoMeasurement(NamedTuple):
@@ -426,7 +459,15 @@ class DragModel:
         """One axis in turn: how far the pseudo-measurement is from the measurement."""
         cfg = self.config
         axis = (self.n_learned // cfg.validate_every) % 3
-        pm = self.pseudo_measurement(f, E, v, axis, validated=False, control=control)
+        pm = self.pseudo_measurement(
+            f,
+            E,
+            v,
+            axis,
+            validated=False,
+            sigma_max_mps=self.config.validate_sigma_max_mps,
+            control=control,
+        )
         if pm is None:
             return
         t_last = self._nees_t_s[axis]
@@ -676,7 +717,11 @@ class DragModel:
                     s_j = sg * 2.0 * abs(a_j) / (k + math.sqrt(disc))  # stable form of the root
             slope = k + 2.0 * q * abs(s_j)  # −∂f_j/∂s_j
             if slope <= 0.0:
-                continue
+                if not cfg.quadratic_fallback_linear or k <= 0.0:
+                    continue
+                # a fitted q < 0 (drag dissipates: a fit artefact of low speeds) makes the
+                # drag non-monotone here: the row's linear part alone
+                s_j, slope = a_j / k, k
             g2 = (slope * r_lost) ** 2  # (∂f_j/∂v_L)²
             v_j = (s_j - sum(r[i] * v[i] for i in known)) / r_lost
             phi: tuple[float, ...] = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))

@@ -53,12 +53,14 @@ def test_a_hover_is_trusted_on_the_priors_k_and_sees_the_lost_axis() -> None:
     f = np.array([*(-K_TRUE * (E.T @ v))[:2], -9.81])
     pm = model.pseudo_measurement(f, E, v, 0)
     assert pm is not None
-    # within 4σ of the truth. That σ is large and mostly the model's (measured 0.63 m/s,
-    # 0.61 of it from θ's covariance): at one heading c and k·w are one regressor, and
+    # within 4σ of the truth. That σ is large and mostly the model's (measured 0.54 m/s,
+    # 0.45 of it from θ's covariance; 0.63 and 0.61 from the x row alone before the y row,
+    # whose fitted q = −1.0 leaves no root, fell back to its linear part, issue 32): at
+    # one heading c and k·w are one regressor, and
     # only their priors (c: 0.5 m/s², so ~0.5/k ≈ 1 m/s of wind) split them. k known does
     # not make a hover's wind known; a turn would (the module docstring of model.py)
     assert abs(pm.v_mps - 1.0) <= 4.0 * pm.sigma_mps
-    assert pm.sigma_model_mps > 0.9 * pm.sigma_mps
+    assert pm.sigma_model_mps > 0.8 * pm.sigma_mps
     assert pm.sigma_mps < 1.0
 
 

@@ -56,3 +56,38 @@ def test_the_table_is_shared_with_a_spawned_process() -> None:
     # 7: already admitted (here); 8: the second slot; 9: over the cap of 2
     assert got == [True, True, False]
     assert shared.admitted() == 2
+
+
+def _events(got: list[Any]) -> list[str]:
+    return [type(e).__name__ for e in got if type(e).__name__ in ("NewVehicle", "VehicleEvicted")]
+
+
+def test_a_newcomer_takes_the_slot_of_another_workers_idle_vehicle() -> None:
+    """The fuzz over ``serve --workers 2`` (benchmarks/fuzz_ingest.py --serve): a storm of
+    spoofed ids that went to one worker filled the service, and the real vehicle of the
+    other worker was refused for ever (a worker evicted only its own idle vehicles). As in
+    one process, a vehicle silent for ``evict_idle_s`` now gives its slot to a newcomer,
+    whichever worker holds it; its worker evicts it at its next message."""
+    cfg = IngestConfig(max_vehicles=2, evict_idle_s=10.0)
+    shared = SharedAdmission(cfg.max_vehicles)
+    a, b = Ingest(cfg, shared), Ingest(cfg, shared)
+    a.on_message(_att(10, 20), 0.0)  # two ids heard once, at 0 and 3 s
+    a.on_message(_att(10, 21), 3.0)
+    assert b.on_message(_att(10, 1), 5.0) == []  # full, nobody idle for 10 s yet
+    assert b.counters["vehicle_cap_dropped"] == 1
+    got = b.on_message(_att(10, 1), 10.5)  # 20 has been silent 10.5 s: its slot is 1's
+    assert _events(got) == ["NewVehicle"] and 1 in b.vehicles
+    assert shared.admitted() == 2
+    # 20 comes back to a: it has lost its slot, a evicts it; the service is full again
+    # (21 silent only 9 s) and 20 is refused as a newcomer would be
+    got = a.on_message(_att(20, 20), 12.0)
+    assert _events(got) == ["VehicleEvicted"] and 20 not in a.vehicles
+    assert a.counters["evicted"] == 1 and a.counters["vehicle_cap_dropped"] == 1
+    assert sorted(a.vehicles) == [21] and shared.admitted() == 2
+    # a vehicle heard at least every second keeps its slot against any newcomer
+    for k in range(30):
+        b.on_message(_att(20 + 100 * k, 1), 10.5 + 0.9 * k)
+    assert 1 in b.vehicles
+    got = a.on_message(_att(10, 22), 40.0)  # 21 silent 37 s: 22 takes its slot, not 1's
+    assert _events(got) == ["VehicleEvicted", "NewVehicle"]
+    assert sorted(a.vehicles) == [22] and 1 in b.vehicles and shared.admitted() == 2
