@@ -38,7 +38,7 @@ RUN --mount=type=secret,id=pipconf --mount=type=secret,id=cacert \
 # The C compiler for the project's compiled core (setup.py: Cython): this stage only; the
 # runtime stage gets the built wheel and has no compiler.
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends gcc libc6-dev \
+    && apt-get install -y --no-install-recommends gcc libc6-dev python3-dev \
     && rm -rf /var/lib/apt/lists/*
 
 RUN /opt/glmav/bin/python -m compileall -q /opt/glmav/lib
