@@ -56,17 +56,13 @@ cdef inline void _load9(object seq, double* E) except *:
         E[k] = seq[k]
 
 
-cdef inline void _load3(object seq, double* v) except *:
-    v[0], v[1], v[2] = seq
-
-
 def rotate_flat(E, v):
     """E v for a flat row-major E (:func:`e_flat`): body to earth."""
     cdef double Ec[9]
     cdef double vc[3]
     cdef double out[3]
     _load9(E, Ec)
-    _load3(v, vc)
+    load3(v, vc)
     rotate_c(Ec, vc, out)
     return [out[0], out[1], out[2]]
 
@@ -77,6 +73,6 @@ def rotate_t_flat(E, v):
     cdef double vc[3]
     cdef double out[3]
     _load9(E, Ec)
-    _load3(v, vc)
+    load3(v, vc)
     rotate_t_c(Ec, vc, out)
     return [out[0], out[1], out[2]]

@@ -15,7 +15,7 @@ multiply-add), so the golden replays did not change.
 from libc.math cimport exp, expm1, isfinite
 
 from glmav_observer.estimation.inputs cimport HeldInputs
-from glmav_observer.rotation cimport e_flat_c, rotate_c
+from glmav_observer.rotation cimport e_flat_c, rotate_c, rotate_t_c
 
 #: Below this |γ·Δt| the φ-functions use their Taylor series (no cancellation); 9 terms:
 #: the first neglected one is < 0.1⁹/9! ≈ 3e-15 relative (observer.phi1_phi2).
@@ -106,12 +106,11 @@ cdef class BankCore:
     def ned_rows(self):
         """E x̂ of each configuration under the last step's E, as tuples (matmul's order)."""
         cdef int i
-        cdef double* E = self.E
+        cdef double n[3]
         out = []
         for i in range(4):
-            u, v, w = self.x[i][0], self.x[i][1], self.x[i][2]
-            out.append((E[0] * u + E[1] * v + E[2] * w, E[3] * u + E[4] * v + E[5] * w,
-                        E[6] * u + E[7] * v + E[8] * w))
+            rotate_c(self.E, &self.x[i][0], n)
+            out.append((n[0], n[1], n[2]))
         return out
 
     def e_list(self):
@@ -238,7 +237,7 @@ cdef class BankCore:
         cdef double a[3]
         cdef double z[3]
         cdef double* t
-        cdef double e, hp1, h2p2, g, wl, wm1, wm2, ym1, ym2, zl0, cl, u0, u1, u2
+        cdef double e, hp1, h2p2, g, wl, wm1, wm2, ym1, ym2, zl0, cl
         cdef double w0, w1, w2, y0, y1, y2
         cdef int i, l_, m1, m2
         e_flat_c(eul[0], eul[1], eul[2], E)
@@ -252,12 +251,7 @@ cdef class BankCore:
             hp1 = t[3 * i + 1]
             h2p2 = t[3 * i + 2]
             g = self.gam[i]
-            u0 = self.x[i][0]
-            u1 = self.x[i][1]
-            u2 = self.x[i][2]
-            z[0] = E[0] * u0 + E[1] * u1 + E[2] * u2  # z = E x̂
-            z[1] = E[3] * u0 + E[4] * u1 + E[5] * u2
-            z[2] = E[6] * u0 + E[7] * u1 + E[8] * u2
+            rotate_c(E, &self.x[i][0], z)  # z = E x̂
             l_ = lost[i]
             if l_ < 0:  # C = I: ż = a − ω_e × y + γ (y − z)
                 y0, y1, y2 = y[0], y[1], y[2]
@@ -278,6 +272,4 @@ cdef class BankCore:
                 z[l_] = zl0 + h * cl
                 z[m1] = e * z[m1] + hp1 * (a[m1] + wl * ym2 + g * ym1 - wm2 * zl0) - h2p2 * wm2 * cl
                 z[m2] = e * z[m2] + hp1 * (a[m2] - wl * ym1 + g * ym2 + wm1 * zl0) + h2p2 * wm1 * cl
-            self.x[i][0] = E[0] * z[0] + E[3] * z[1] + E[6] * z[2]  # x̂ = Eᵀ z
-            self.x[i][1] = E[1] * z[0] + E[4] * z[1] + E[7] * z[2]
-            self.x[i][2] = E[2] * z[0] + E[5] * z[1] + E[8] * z[2]
+            rotate_t_c(E, z, &self.x[i][0])  # x̂ = Eᵀ z

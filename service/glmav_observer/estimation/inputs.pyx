@@ -20,18 +20,14 @@ y(t) ≈ y(t_y) + (A(t) − A(t_y)) − (B(t) − B(t_y)) b̂ (docs/design/obser
 Every sum is the former Python code's, in its order (setup.py: no fused multiply-add).
 """
 
-from libc.stdlib cimport free, malloc, realloc
+from libc.stdlib cimport free, malloc
 from libc.string cimport memcpy
 
-from glmav_observer.rotation cimport rotate_c
+from glmav_observer.rotation cimport load3, rotate_c
 
 from glmav_observer.estimation.fdi_reference import LAG_WINDOW_S as _LAG_WINDOW_S
 
 cdef double LAG_WINDOW = _LAG_WINDOW_S
-
-cdef inline void _load3(object seq, double* v) except *:
-    v[0], v[1], v[2] = seq
-
 
 cdef class HeldInputs:
     """The held samples and the integrals A, B, C of one vehicle (module docstring)."""
@@ -155,7 +151,7 @@ cdef class HeldInputs:
         y(t_y) + ΔA − ΔB b̂ with ``propagate`` (module docstring)."""
         cdef double b[3]
         cdef double out[3]
-        _load3(bias_body_mps2, b)
+        load3(bias_body_mps2, b)
         self.y_for_step_c(b, propagate, out)
         return [out[0], out[1], out[2]]
 
@@ -219,12 +215,12 @@ cdef class HeldInputs:
         assert self.f_body_mps2 is not None
         for k in range(9):
             E[k] = e_flat[k]
-        _load3(self.f_body_mps2, f)
+        load3(self.f_body_mps2, f)
         self.integrate_c(t, dt, E, f)
 
     def hold_measurement(self, y_ned_mps):
         """Hold a new measurement from now on (the propagation restarts from here)."""
-        _load3(y_ned_mps, self.y)
+        load3(y_ned_mps, self.y)
         memcpy(self.a_at_y, self.a_int_c, 3 * sizeof(double))
         memcpy(self.b_at_y, self.b_int, 9 * sizeof(double))
         memcpy(self.f_at_y, self.f_int, 4 * sizeof(double))

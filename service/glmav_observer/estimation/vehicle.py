@@ -322,20 +322,27 @@ class VehicleEstimator:
         """Advance the bank and the IMU integrals from t_bank to t, inputs held (ZOH)."""
         inputs = self.inputs
         assert self.t_bank_s is not None and inputs.euler_rad is not None
-        f = inputs.f_body_mps2
-        assert f is not None
         dt = t - self.t_bank_s
         bias = self.fdi.fit.bias_body_mps2
         propagate = self.cfg.propagate_held_measurement
         b_obs = self.sel.bank_bias(self.fdi)
+        # the compiled per-sample step (bank and integrals in one call, f − b̂_obs formed
+        # there); the numpy one where it declines (BankCore.advance)
+        fallback = not self.bank.advance(t, dt, inputs, bias, propagate, b_obs, self._use)
+        aiding = self.aiding is not None and self.aiding.lost_idx is not None
+        if not (fallback or aiding):
+            self.t_bank_s = t
+            return
+        f = inputs.f_body_mps2
+        assert f is not None
         f_bank = f if b_obs is None else (f[0] - b_obs[0], f[1] - b_obs[1], f[2] - b_obs[2])
-        # the compiled per-sample step (bank and integrals in one call), else the numpy one
-        if not self.bank.advance(t, dt, inputs, bias, propagate, b_obs, self._use):
+        if fallback:
             y = inputs.y_for_step(bias, propagate)
             mask = None if all(self._use) else self._use
             self.bank.step_floats(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
             inputs.integrate(t, dt, self.bank.e_last_flat())
-        if self.aiding is not None and self.aiding.lost_idx is not None:
+        if aiding:
+            assert self.aiding is not None
             e_flat = self.bank.e_last_flat()
             a_ned = rotate_flat(e_flat, f_bank)  # E (f − b̂_obs) + g e_d (V̇ = E Γ)
             a_ned[2] += self.cfg.g_mps2
