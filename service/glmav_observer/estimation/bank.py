@@ -192,6 +192,10 @@ class ObserverBank:
         else:
             self._core.set_e_list(e_matrix(np.array(euler_rad), self.e_form).ravel().tolist())
 
+    def centre_imu(self, inputs: HeldInputs, f_new_body_mps2: Sequence[float], dt_s: float) -> None:
+        """The trapezoid's correction at a new IMU sample (``BankCore.centre_imu``)."""
+        self._core.centre_imu(inputs, f_new_body_mps2, dt_s)
+
     def reset(self, v_body_mps: ArrayLike | None = None) -> None:
         """Set every configuration to ``v_body_mps`` ((3,) or (4, 3), default zero)."""
         if v_body_mps is None:
@@ -256,9 +260,11 @@ class ObserverBank:
         f: Sequence[float],
         y: Sequence[float],
         meas_mask: ArrayLike | None = None,
+        y_rate: Sequence[float] | None = None,
     ) -> None:
         """:meth:`step` for inputs that are already three Python floats each (a vehicle's
-        samples): no conversion, the same checks of values (NaN, dt_s < 0)."""
+        samples): no conversion, the same checks of values (NaN, dt_s < 0). ``y_rate``:
+        the measurement's ramp over the step (NED, m/s²; ``observer.zoh_step``)."""
         phi, th, psi = eul
         if not math.isfinite(h + phi + th + psi + w[0] + w[1] + w[2] + f[0] + f[1] + f[2]):
             for name, vals in (("dt_s", [h]), ("euler_rad", eul), ("omega_body_radps", w),
@@ -274,11 +280,11 @@ class ObserverBank:
             masks = self._masks(y, meas_mask)
         self._masks_last = masks
         if masks is _STANDARD_MASKS and self.e_form == "exact":
-            self._core.step(h, eul, w, f, y, _STANDARD_LOST)
+            self._core.step(h, eul, w, f, y, _STANDARD_LOST, y_rate)
         elif self.e_form == "exact" and all(m[0] + m[1] + m[2] >= 2 for m in masks):
-            self._core.step(h, eul, w, f, y, [_lost_index(m) for m in masks])
+            self._core.step(h, eul, w, f, y, [_lost_index(m) for m in masks], y_rate)
         else:
-            self._step_numpy(h, eul, w, f, y, masks)
+            self._step_numpy(h, eul, w, f, y, masks, y_rate)
 
     def advance(  # noqa: PLR0917 -- the held inputs and what the supervisor decided
         self,
@@ -309,6 +315,7 @@ class ObserverBank:
         f: Sequence[float],
         y: Sequence[float],
         masks: list[tuple[bool, bool, bool]],
+        y_rate: Sequence[float] | None = None,
     ) -> None:
         """One or no measured axis in a configuration, or the small-angle E: the numpy
         form (:func:`~glmav_observer.estimation.observer.zoh_step`)."""
@@ -316,7 +323,7 @@ class ObserverBank:
         Gam = gamma_body_mps2(np.array(f), np.array(eul), self.g_mps2)
         x_new = zoh_step(
             np.array(self._core.rows()), np.array(w), Gam, E, np.array(y), np.array(masks),
-            self._gamma_arr, h, orthogonal_e=self.e_form == "exact",
+            self._gamma_arr, h, orthogonal_e=self.e_form == "exact", y_rate_ned_mps2=y_rate,
         )  # fmt: skip
         self._core.set_rows(x_new.tolist())
         self._core.set_e_list(E.ravel().tolist())

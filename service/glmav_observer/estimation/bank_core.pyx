@@ -8,14 +8,18 @@ update"). :class:`~glmav_observer.estimation.bank.ObserverBank` is its Python fa
 keeps the numpy form for the other cases); the numpy :mod:`.observer` is the oracle
 tests/unit/glmav_observer/estimation/test_bank.py pins it to (1e-12).
 
-Every sum is the former plain-float code's, in its order (setup.py: no fused
-multiply-add), so the golden replays did not change.
+With ``propagate_held_measurement`` the measurement the states are pulled to moves over
+the step, y(τ) = y + ρ τ with ρ = E (f − b̂) + g e_d (inputs.HeldInputs.y_for_step):
+the ramp terms of :func:`~glmav_observer.estimation.observer.zoh_earth` take it. A held y
+lags by half a step in the state (docs/design/observer-notes.md, "The measurement's ramp").
+
+Sums in the former plain-float code's order (setup.py: no fused multiply-add).
 """
 
 from libc.math cimport exp, expm1, isfinite
 
 from glmav_observer.estimation.inputs cimport HeldInputs
-from glmav_observer.rotation cimport e_flat_c, rotate_c, rotate_t_c
+from glmav_observer.rotation cimport e_flat_c, load3, rotate_c, rotate_t_c
 
 #: Below this |γ·Δt| the φ-functions use their Taylor series (no cancellation); 9 terms:
 #: the first neglected one is < 0.1⁹/9! ≈ 3e-15 relative (observer.phi1_phi2).
@@ -130,6 +134,29 @@ cdef class BankCore:
         """E from ZYX Euler angles (13)."""
         e_flat_c(phi_rad, theta_rad, psi_rad, self.E)
 
+    def centre_imu(self, HeldInputs inputs, f_new, double dt_imu_s):
+        """The trapezoid's correction at an IMU sample (inputs module docstring): every
+        state (body frame) and the integrals A, C, ∫ f dt take (f_k − f_{k−1}) Δt/2, with
+        f_{k−1} the held specific force, f_k = ``f_new`` and Δt = ``dt_imu_s`` the IMU's
+        interval; A and C rotated with the last step's E. Nothing without a held f, for
+        Δt ≤ 0 or for a non-finite difference."""
+        cdef double d[3]
+        cdef double fn[3]
+        cdef double fo[3]
+        cdef int i, k
+        if inputs.f_body_mps2 is None or not dt_imu_s > 0.0:
+            return
+        load3(f_new, fn)
+        load3(inputs.f_body_mps2, fo)
+        for k in range(3):
+            d[k] = (fn[k] - fo[k]) * (0.5 * dt_imu_s)
+            if not isfinite(d[k]):
+                return
+        for i in range(4):
+            for k in range(3):
+                self.x[i][k] += d[k]
+        inputs.kick_c(self.E, d)
+
     def lost(self):
         """The unmeasured axis of each configuration in the last :meth:`advance` (−1: none)."""
         return [self.last_lost[0], self.last_lost[1], self.last_lost[2], self.last_lost[3]]
@@ -153,6 +180,7 @@ cdef class BankCore:
         cdef double fb[3]
         cdef double y[3]
         cdef double b[3]
+        cdef double fr[3]
         cdef bint ok[3]
         cdef int lost[4]
         cdef int i, k, n, l_
@@ -186,7 +214,16 @@ cdef class BankCore:
             if n < 2:
                 return False
             lost[i] = l_ if n == 2 else -1
-        self.step_c(dt, eul, w, fb, y, lost)
+        # the propagated measurement moves at E (f − b̂) + g e_d over the step (y_for_step)
+        cdef double rho[3]
+        e_flat_c(eul[0], eul[1], eul[2], self.E)
+        if propagate:
+            fr[0] = f[0] - b[0]
+            fr[1] = f[1] - b[1]
+            fr[2] = f[2] - b[2]
+            rotate_c(self.E, fr, rho)
+            rho[2] += self.g_mps2
+        self.step_c(dt, w, fb, y, lost, rho if propagate else NULL)
         for i in range(4):
             self.last_lost[i] = lost[i]
         inputs.integrate_c(t, dt, self.E, f)
@@ -211,27 +248,36 @@ cdef class BankCore:
             self.cache_terms[s][i][2] = h * h * p2
         return &self.cache_terms[s][0][0]
 
-    def step(self, double h, eul, w, f, y, lost):
+    def step(self, double h, eul, w, f, y, lost, y_rate=None):
         """Every configuration over ``h`` s, exact E, two or three measured axes each.
 
         ``eul`` ZYX Euler angles (rad), ``w`` body rates (rad/s), ``f`` the specific force
         (m/s², FRD), ``y`` the measurement (NED, m/s; only measured axes are read, they are
-        finite), ``lost[i]`` configuration i's unmeasured axis (−1: none). The caller
-        checked the inputs (:meth:`ObserverBank.step_floats`)."""
-        cdef double ev[3]
+        finite), ``lost[i]`` configuration i's unmeasured axis (−1: none), ``y_rate`` the
+        measurement's rate over the step (NED, m/s²; None: held). The caller checked the
+        inputs (:meth:`ObserverBank.step_floats`)."""
         cdef double wb[3]
         cdef double fb[3]
         cdef double yv[3]
+        cdef double rho[3]
         cdef int ls[4]
-        ev[0], ev[1], ev[2] = eul
+        phi, th, psi = eul
+        e_flat_c(phi, th, psi, self.E)
         wb[0], wb[1], wb[2] = w
         fb[0], fb[1], fb[2] = f
         yv[0], yv[1], yv[2] = y
         ls[0], ls[1], ls[2], ls[3] = lost
-        self.step_c(h, ev, wb, fb, yv, ls)
+        if y_rate is None:
+            self.step_c(h, wb, fb, yv, ls, NULL)
+        else:
+            rho[0], rho[1], rho[2] = y_rate
+            self.step_c(h, wb, fb, yv, ls, rho)
 
-    cdef void step_c(self, double h, const double* eul, const double* w, const double* f,
-                     const double* y, const int* lost) noexcept:
+    cdef void step_c(self, double h, const double* w, const double* f, const double* y,
+                     const int* lost, const double* rho) noexcept:
+        """The step under ``self.E`` (set by the caller from the step's attitude);
+        ``rho`` the measurement's rate ρ (NED, m/s²; NULL: held): y(τ) = y + ρ τ over the
+        step, observer.zoh_earth's ramp terms."""
         cdef double* E = self.E
         cdef double we[3]
         cdef double a[3]
@@ -239,8 +285,12 @@ cdef class BankCore:
         cdef double* t
         cdef double e, hp1, h2p2, g, wl, wm1, wm2, ym1, ym2, zl0, cl
         cdef double w0, w1, w2, y0, y1, y2
+        cdef double r0 = 0.0, r1 = 0.0, r2 = 0.0
+        cdef double c0, c1_, c2, rm1, rm2
+        cdef bint ramp = rho != NULL
         cdef int i, l_, m1, m2
-        e_flat_c(eul[0], eul[1], eul[2], E)
+        if ramp:
+            r0, r1, r2 = rho[0], rho[1], rho[2]
         rotate_c(E, w, we)  # ω_e = E ω
         # a = E Γ = E f + (0, 0, g): gravity in body axes (9) is Eᵀ (0, 0, g)
         rotate_c(E, f, a)
@@ -259,6 +309,13 @@ cdef class BankCore:
                 z[0] = e * z[0] + hp1 * (a[0] - (w1 * y2 - w2 * y1) + g * y0)
                 z[1] = e * z[1] + hp1 * (a[1] - (w2 * y0 - w0 * y2) + g * y1)
                 z[2] = e * z[2] + hp1 * (a[2] - (w0 * y1 - w1 * y0) + g * y2)
+                if ramp:  # + h² φ2 (γ ρ − ω_e × ρ)
+                    c0 = g * r0 - (w1 * r2 - w2 * r1)
+                    c1_ = g * r1 - (w2 * r0 - w0 * r2)
+                    c2 = g * r2 - (w0 * r1 - w1 * r0)
+                    z[0] = z[0] + h2p2 * c0
+                    z[1] = z[1] + h2p2 * c1_
+                    z[2] = z[2] + h2p2 * c2
             else:  # lost axis l, measured m1 = l+1, m2 = l+2 (cyclic); ż_l = (a − ω_e × Ȳ)_l
                 m1 = (l_ + 1) % 3
                 m2 = (l_ + 2) % 3
@@ -272,4 +329,10 @@ cdef class BankCore:
                 z[l_] = zl0 + h * cl
                 z[m1] = e * z[m1] + hp1 * (a[m1] + wl * ym2 + g * ym1 - wm2 * zl0) - h2p2 * wm2 * cl
                 z[m2] = e * z[m2] + hp1 * (a[m2] - wl * ym1 + g * ym2 + wm1 * zl0) + h2p2 * wm1 * cl
+                if ramp:  # ρ on the measured axes only (ρ_l = 0): observer.zoh_earth
+                    rm1 = r0 if m1 == 0 else (r1 if m1 == 1 else r2)
+                    rm2 = r0 if m2 == 0 else (r1 if m2 == 1 else r2)
+                    z[l_] = z[l_] + (-(wm1 * rm2 - wm2 * rm1)) * (0.5 * h * h)
+                    z[m1] = z[m1] + h2p2 * (g * rm1 + wl * rm2)
+                    z[m2] = z[m2] + h2p2 * (g * rm2 - wl * rm1)
             rotate_t_c(E, z, &self.x[i][0])  # x̂ = Eᵀ z

@@ -63,6 +63,9 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                                     "bias to the bank (it integrates otherwise)"),
         "compensate_lag": _r("", "physics", "move the measurement to the present by the "
                              "fit's observed lag (v = y + d·a)"),
+        "trapezoid_imu": _r("", "physics", "integrate the IMU with the trapezoid at its "
+                            "samples' times: a held sample lags by half the IMU's interval "
+                            "(20 ms at 25 Hz)"),
         "max_gap_s": _r("s", "physics", "a longer silence restarts the bank: 1 s of dead "
                         "reckoning at 0.3 m/s² bias is already 0.3 m/s"),
         "follow_unaided": _r("", "measured", "while the autopilot says an axis is unaided, "

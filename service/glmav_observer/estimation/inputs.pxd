@@ -19,3 +19,4 @@ cdef class HeldInputs:
     cdef void _hist_push(self, double t, const double* ai) except *
     cdef double* _hist_at(self, Py_ssize_t i) noexcept
     cdef void integrate_c(self, double t, double dt, const double* E, const double* f) except *
+    cdef void kick_c(self, const double* E, const double* d_body) noexcept

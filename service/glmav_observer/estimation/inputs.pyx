@@ -17,6 +17,12 @@ Held measurement. A held y lags the truth by about its age times |V̇|; with
 ``propagate_held_measurement`` it is carried forward with the IMU instead,
 y(t) ≈ y(t_y) + (A(t) − A(t_y)) − (B(t) − B(t_y)) b̂ (docs/design/observer-notes.md measures both).
 
+Trapezoidal IMU. The step holds the last specific force f_{k−1} until the next IMU
+sample; when f_k comes at t_k, :meth:`BankCore.centre_imu` adds (f_k − f_{k−1}) Δt/2 over
+the IMU interval Δt, so that at every IMU sample the integrals and states are the
+trapezoid's, ∫ a dt over [t_{k−1}, t_k] ≈ (a_{k−1} + a_k) Δt/2: a held f lags the
+samples by Δt/2 (20 ms at a 25 Hz IMU; docs/design/observer-notes.md, "Trapezoidal IMU").
+
 Every sum is the former Python code's, in its order (setup.py: no fused multiply-add).
 """
 
@@ -205,6 +211,21 @@ cdef class HeldInputs:
         fi[1] += f[1] * dt
         fi[2] += f[2] * dt
         fi[3] += dt
+
+    cdef void kick_c(self, const double* E, const double* d_body) noexcept:
+        """Add the trapezoid's correction to the integrals: ``d_body`` = (f_k − f_{k−1})
+        Δt/2 in the body frame (m/s), rotated by E into A and C; ∫ f dt takes it as it is
+        (BankCore.centre_imu)."""
+        cdef double d[3]
+        rotate_c(E, d_body, d)
+        self.a_int_c[0] += d[0]
+        self.a_int_c[1] += d[1]
+        self.a_int_c[2] += d[2]
+        self.c_int_c[0] -= d[1]
+        self.c_int_c[1] += d[0]
+        self.f_int[0] += d_body[0]
+        self.f_int[1] += d_body[1]
+        self.f_int[2] += d_body[2]
 
     def integrate(self, double t, double dt, e_flat):
         """Advance A, its history, C and B over [t − dt, t] with E = ``e_flat`` (row-major)

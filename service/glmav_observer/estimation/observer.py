@@ -285,14 +285,28 @@ def expm(M: ArrayLike) -> FloatArray:
     return T
 
 
-def _affine_flow(M: FloatArray, c: FloatArray, dt_s: FloatArray, z0: FloatArray) -> FloatArray:
-    """Exact z(Δt) of ż = M z + c (M, c held): exponential of the augmented [[M, c], [0, 0]]."""
-    batch = np.broadcast_shapes(M.shape[:-2], c.shape[:-1], dt_s.shape, z0.shape[:-1])
-    aug = np.zeros((*batch, 4, 4))
+def _affine_flow(
+    M: FloatArray, c: FloatArray, dt_s: FloatArray, z0: FloatArray, c1: FloatArray | None = None
+) -> FloatArray:
+    """Exact z(Δt) of ż = M z + c + c1 τ (M, c, c1 held; c1 None: 0): the exponential of
+    the augmented [[M, c1, c], [0, 0, 1], [0, 0, 0]] acting on (z, τ, 1)."""
+    if c1 is None:
+        batch = np.broadcast_shapes(M.shape[:-2], c.shape[:-1], dt_s.shape, z0.shape[:-1])
+        aug = np.zeros((*batch, 4, 4))
+        aug[..., :3, :3] = M
+        aug[..., :3, 3] = c
+        F = expm(aug * np.asarray(dt_s)[..., None, None])
+        return _mv(F[..., :3, :3], np.broadcast_to(z0, (*batch, 3))) + F[..., :3, 3]
+    batch = np.broadcast_shapes(
+        M.shape[:-2], c.shape[:-1], c1.shape[:-1], dt_s.shape, z0.shape[:-1]
+    )
+    aug = np.zeros((*batch, 5, 5))
     aug[..., :3, :3] = M
-    aug[..., :3, 3] = c
+    aug[..., :3, 3] = c1
+    aug[..., :3, 4] = c
+    aug[..., 3, 4] = 1.0
     F = expm(aug * np.asarray(dt_s)[..., None, None])
-    return _mv(F[..., :3, :3], np.broadcast_to(z0, (*batch, 3))) + F[..., :3, 3]
+    return _mv(F[..., :3, :3], np.broadcast_to(z0, (*batch, 3))) + F[..., :3, 4]
 
 
 # --------------------------------------------------------------------------- ZOH update
@@ -316,8 +330,12 @@ def zoh_step(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     dt_s: ArrayLike,
     *,
     orthogonal_e: bool,
+    y_rate_ned_mps2: ArrayLike | None = None,
 ) -> FloatArray:
     """x̂(t+Δt): the exact solution of (16) over Δt with ω, Γ, E, y and the mask held.
+
+    ``y_rate_ned_mps2`` (..., 3): the measurement moves over the step, y(τ) = y + ρ τ (the
+    held measurement carried forward with the IMU: ρ = E (f − b̂) + g e_d); None: held.
 
     ``x_hat_body_mps``, ``omega_body_radps``, ``Gamma_body_mps2``, ``y_ned_mps`` (..., 3);
     ``E`` (..., 3, 3); ``meas_mask`` (..., 3) bool (NED axes measured now: the configuration's
@@ -359,11 +377,17 @@ def zoh_step(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     ybar = np.where(mask, y, 0.0)  # Ȳ = D y (Cᵀ y embedded in NED), unmeasured axes 0
     if not np.isfinite(ybar).all():
         raise NonFiniteInputError("y_ned_mps: NaN or infinite value on an axis meas_mask selects")
+    rho = None
+    if y_rate_ned_mps2 is not None:
+        rate = _array("y_rate_ned_mps2", y_rate_ned_mps2, (3,))
+        rho = np.where(mask, rate, 0.0)
+        if not np.isfinite(rho).all():
+            raise NonFiniteInputError("y_rate_ned_mps2: NaN or infinite on a measured axis")
     if orthogonal_e:
         # z = E x̂, ω_e = E ω, a = E Γ with E held over the step
-        z1 = zoh_earth(rotate(E_, x), rotate(E_, w), rotate(E_, G), ybar, mask, gam, h)
+        z1 = zoh_earth(rotate(E_, x), rotate(E_, w), rotate(E_, G), ybar, mask, gam, h, rho=rho)
         return rotate_t(np.broadcast_to(E_, (*batch, 3, 3)), z1)  # x̂ = Eᵀ z
-    return _zoh_general_e(x, w, G, E_, ybar, mask, gam, h)
+    return _zoh_general_e(x, w, G, E_, ybar, mask, gam, h, rho)
 
 
 def phi_terms(gam: FloatArray, h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -389,6 +413,7 @@ def zoh_earth(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     gam: FloatArray,
     h: FloatArray,
     terms: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+    rho: FloatArray | None = None,
 ) -> FloatArray:
     """The exact-E update in frozen earth coordinates (docs/design/observer-notes.md, "Discrete-time update").
 
@@ -401,6 +426,13 @@ def zoh_earth(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     ``terms`` optionally gives precomputed (e^{−γΔt}, Δt φ1, Δt² φ2) with a trailing axis of
     1 (:func:`phi_terms`; a fixed-rate caller reuses them). ``mask`` may be a smaller array
     that broadcasts (e.g. the (4, 3) configuration masks for (n, 4, 3) states).
+
+    The measurement's ramp: ``rho`` = D ρ (…, 3; None: 0) when Ȳ moves as Ȳ + ρ τ over
+    the step (docs/design/observer-notes.md, "The measurement's ramp"). The forcing gains
+    c1 τ with c1 = γ D ρ − ω_e × D ρ: the measured axes take Δt² φ2 c1 (exact), the lost
+    axis c1_l Δt²/2 (exact); the lost axis's τ² term then reaches the measured axes
+    through −(ω_e × e_l) z_l and is left out: |ω_e|² |ρ| Δt³/6, 1e-5 m/s at 1 rad/s, 5
+    m/s² and a 20 ms step (the fewer-than-two-axes path below is exact).
     Returns z(Δt) (…, 3). No validation (callers validate).
     """
     d = mask.astype(np.float64)
@@ -413,12 +445,17 @@ def zoh_earth(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     g = gam[..., None]
     # z_m(Δt) = e^{−γΔt} z_m0 + Δt φ1 f0 + Δt² φ2 f1,  f0 = r + γȲ − (ω_e×e_l) z_l0, f1 = −(ω_e×e_l) ż_l
     z_meas = e * z0 + hp1 * (r + g * ybar - wxu * zl0) - h2p2 * (wxu * cl)
+    c1 = None
+    if rho is not None:
+        c1 = g * rho - _cross(we, rho)
+        z_meas = z_meas + h2p2 * c1
+        zl0 = zl0 + (u * c1).sum(-1)[..., None] * (0.5 * h[..., None] * h[..., None])
     z1 = d * z_meas + u * (zl0 + cl * h[..., None])
     degenerate = mask.sum(-1) < 2
     if degenerate.any():  # one or no measured axis: the generic exact path
         batch = z1.shape[:-1]
         M = -(g[..., None] * (d[..., :, None] * np.eye(3))) - skew(we) * u[..., None, :]
-        zg = _affine_flow(M, r + g * ybar, h, z0)
+        zg = _affine_flow(M, r + g * ybar, h, z0, c1)
         z1 = np.where(np.broadcast_to(degenerate, batch)[..., None], zg, z1)
     out: FloatArray = z1
     return out
@@ -433,8 +470,10 @@ def _zoh_general_e(  # noqa: PLR0917 -- positional API mirrors the paper's symbo
     mask: BoolArray,
     gam: FloatArray,
     h: FloatArray,
+    rho: FloatArray | None = None,
 ) -> FloatArray:
-    """Any invertible E: ẋ = N x + (Γ + K y) with N = A − K Q (17), Q⁺ by (23), exactly.
+    """Any invertible E: ẋ = N x + (Γ + K y) with N = A − K Q (17), Q⁺ by (23), exactly
+    (with the measurement's ramp ``rho`` = D ρ: + K ρ τ).
 
     Embedded form for any mask: Q⁺ y = Eᵀ D G⁻¹ Ȳ with G = D E Eᵀ D + (I − D), which is
     Qᵀ(QQᵀ)⁻¹ C Cᵀ y with the measured rows of Q.
@@ -448,4 +487,4 @@ def _zoh_general_e(  # noqa: PLR0917 -- positional API mirrors the paper's symbo
     K = A @ Qpe + g * Et  # K applied to Ȳ: (27)-(29); rows of unmeasured axes are 0 in Ȳ
     N = A - K @ Dm @ E  # (17): N = A − K Q
     b = G + _mv(K, ybar)  # Γ + K y
-    return _affine_flow(N, b, h, x)
+    return _affine_flow(N, b, h, x, None if rho is None else _mv(K, rho))

@@ -79,6 +79,7 @@ from glmav_observer.estimation.seed import (
 )
 from glmav_observer.estimation.selection import ActiveSelection, SwitchEvent
 from glmav_observer.estimation.streams import StreamTiming
+from glmav_observer.frames import e_flat as e_flat_of
 from glmav_observer.frames import rotate_flat
 from glmav_observer.ingest.samples import (
     AidingSample,
@@ -120,6 +121,9 @@ class EstimatorConfig:
     propagate_held_measurement: bool = True
     compensate_accel_bias: bool = True
     compensate_lag: bool = True
+    #: integrate the IMU with the trapezoid at its samples' own times (BankCore.centre_imu)
+    #: instead of holding each sample until the next (Δt/2 of lag)
+    trapezoid_imu: bool = True
     max_gap_s: float = 1.0
     #: while the autopilot says an axis is unaided (GPS lost), ``active`` follows its
     #: velocity there (``VehicleEstimator._follow_unaided``); False: filtered as usual
@@ -218,6 +222,7 @@ class VehicleEstimator:
         self._n_accel_changes = 0
         self.t_bank_s: float | None = None
         self.t_first_s: float | None = None
+        self._t_imu_s: float | None = None  # the last IMU sample's time (trapezoid_imu)
         self._use: list[bool] = [False, False, False]
         self._last_residual: list[float] = [math.nan] * 3
         self._last_ratio: list[float] = [0.0, 0.0, 0.0]
@@ -296,6 +301,11 @@ class VehicleEstimator:
                 if inputs.f_body_mps2 is None:
                     return out
                 f_used = inputs.f_body_mps2
+            t_prev, self._t_imu_s = self._t_imu_s, t
+            if self.cfg.trapezoid_imu and self.t_bank_s is not None and t_prev is not None:
+                dt_imu = t - t_prev
+                if dt_imu <= self.cfg.max_gap_s:
+                    self.bank.centre_imu(inputs, f_used, dt_imu)
             inputs.f_body_mps2 = f_used
             inputs.omega_imu_radps = s.omega_body_radps
             if self._seed is not None and self.t_bank_s is None:
@@ -339,7 +349,14 @@ class VehicleEstimator:
         if fallback:
             y = inputs.y_for_step(bias, propagate)
             mask = None if all(self._use) else self._use
-            self.bank.step_floats(dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask)
+            y_rate = None
+            if propagate:  # the propagated y's ramp, E (f − b̂) + g e_d (BankCore.advance)
+                fr = [f[0] - bias[0], f[1] - bias[1], f[2] - bias[2]]
+                y_rate = rotate_flat(e_flat_of(*inputs.euler_rad), fr)
+                y_rate[2] += self.cfg.g_mps2
+            self.bank.step_floats(
+                dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask, y_rate
+            )
             inputs.integrate(t, dt, self.bank.e_last_flat())
         if aiding:
             assert self.aiding is not None
