@@ -55,9 +55,11 @@ def test_every_frame_in_order_at_the_recorded_rate(tmp_path: Path) -> None:
         assert 0.003 <= statistics.median(gaps) <= 0.005, statistics.median(gaps)
     # vehicle k starts (k + {k/φ}) · stagger / K after the first: 0.324 s and 0.124 s
     # apart here. A stall of the loaded machine delays a vehicle's first frame and so
-    # changes a gap: at least half of it and at most 0.1 s more is left for that
+    # changes a gap: the generator's own worst lateness (it sends late, never early) plus
+    # 0.1 s for the reader thread's stamping is left for that above, half the gap below
     starts = [by_vehicle[s][0][0] for s in (11, 12, 13)]
     offsets = start_offsets_s(3, 0.6)
     for k in (1, 2):
         gap, expected = starts[k] - starts[k - 1], offsets[k] - offsets[k - 1]
-        assert expected / 2 <= gap <= expected + 0.1, (k, gap, expected)
+        late = summary.late_max_s
+        assert expected / 2 <= gap <= expected + late + 0.1, (k, gap, expected, late)
