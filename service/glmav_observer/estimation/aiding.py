@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -50,6 +51,7 @@ from glmav_observer.estimation.aero import (
     DragModelConfig,
 )
 from glmav_observer.estimation.aero.control import ControlMapping
+from glmav_observer.estimation.aero.drift_rate import DriftRate
 
 Vec3 = tuple[float, float, float]
 
@@ -72,6 +74,9 @@ class LostAxisAiding:
         control: ControlMapping | None = None,
     ) -> None:
         self.model = DragModel(model_config)
+        #: the dead reckoning's drift measured while healthy (the published σ of the lost
+        #: axis covers at least it: :mod:`~glmav_observer.estimation.aero.drift_rate`)
+        self.drift = DriftRate()
         self.axis_config = axis_config
         self.sigma_handover_mps = sigma_handover_mps
         self._axis: AidedAxis | None = None
@@ -114,21 +119,46 @@ class LostAxisAiding:
         return None if self._axis is None else self._axis.lost_axis
 
     def learn(
-        self, t_s: float, f_mean_body_mps2: Vec3, e_flat: list[float], v_ned_mps: Vec3
+        self,
+        t_s: float,
+        f_mean_body_mps2: Vec3,
+        e_flat: list[float],
+        v_ned_mps: Vec3,
+        *,
+        a_int_ned_mps: Sequence[float] | None = None,
+        b_int_flat_s: Sequence[float] | None = None,
     ) -> None:
-        """A healthy measurement (every axis measured and vetted by the FDI)."""
+        """A healthy measurement (every axis measured and vetted by the FDI); with the
+        estimator's integrals then (A = ∫EΓ dt, B = ∫E dt, ``HeldInputs``) the dead
+        reckoning's drift is measured too."""
         self.model.learn(t_s, f_mean_body_mps2, _e(e_flat), v_ned_mps, self._control_at(t_s))
+        if a_int_ned_mps is not None and b_int_flat_s is not None:
+            self.drift.observe(t_s, a_int_ned_mps, b_int_flat_s, v_ned_mps)
 
     def start(self, t_s: float, lost_idx: int) -> None:
         """Axis ``lost_idx`` is lost at ``t_s``: the offset starts at 0, σ the hand-over's
         (the new configuration starts from the published active estimate: nothing to
         return)."""
-        self._axis = AidedAxis(lost_idx, 0.0, self.sigma_handover_mps, t_s, self.axis_config)
+        rate = self.drift.rate_mps2()
+        self._axis = AidedAxis(
+            lost_idx,
+            0.0,
+            self.sigma_handover_mps,
+            t_s,
+            self.axis_config,
+            drift_rate_mps2=None if rate is None else rate[lost_idx],
+        )
         self._reset_offset()
 
     def stop(self) -> None:
         self._axis = None
         self._reset_offset()
+
+    def restart(self) -> None:
+        """The estimator starts afresh (its integrals too): stop, and forget the drift
+        measured on the old integrals (the model is kept: a vehicle fact)."""
+        self.stop()
+        self.drift.clear()
 
     def propagate(self, dt_s: float, a_ned_mps2: list[float]) -> None:
         """Over a step, with the earth-frame acceleration the bank was fed (m/s²; the lost

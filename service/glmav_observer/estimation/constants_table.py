@@ -36,6 +36,7 @@ CLASSES: tuple[tuple[str, str], ...] = (
     ("EstimatorConfig", f"{_PKG}.vehicle"),
     ("DragModelConfig", f"{_PKG}.aero.model"),
     ("AidedAxisConfig", f"{_PKG}.aero.aided"),
+    ("DriftRateConfig", f"{_PKG}.aero.drift_rate"),
 )
 
 

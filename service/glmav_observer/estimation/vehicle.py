@@ -46,7 +46,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from glmav_observer.configurations import (
@@ -218,7 +218,7 @@ class VehicleEstimator:
         self.gain = FullGain(cfg.adapt_gamma_full, cfg.gamma_full_min, cfg.gamma_full_max)
         self.out.next_health_s = None
         if self.aiding is not None:
-            self.aiding.stop()
+            self.aiding.restart()
         self._n_accel_changes = 0
         self.t_bank_s: float | None = None
         self.t_first_s: float | None = None
@@ -543,21 +543,25 @@ class VehicleEstimator:
         self._last_ratio = [v.test_ratio for v in verdicts]
         self._after_fdi(t, faulty_before)
         if self.aiding is not None and f_mean is not None:
-            self._aid(t, f_mean, s.v_ned_mps)
+            self._aid(t, f_mean, s.v_ned_mps, inputs.a_int, ints[0])
         if self.gain.on_measurement(
             self.bank, self.fdi, self.despike, imu_hz, self.streams.y_interval_s
         ):
             self.counters["gamma_full_updates"] += 1
 
-    def _aid(self, t: float, f_mean: Vec3, v_meas: Vec3) -> None:
-        """The drag model learns from a measurement while every axis is healthy and armed;
-        while an axis is lost, the aided offset is updated with it (:mod:`aiding`)."""
+    def _aid(
+        self, t: float, f_mean: Vec3, v_meas: Vec3, a_int: list[float], b_int: Sequence[float]
+    ) -> None:
+        """The drag model learns from a measurement while every axis is healthy and armed
+        (and the dead reckoning's drift is measured with the integrals ``a_int``, ∫EΓ dt,
+        and ``b_int``, ∫E dt); while an axis is lost, the aided offset is updated with it
+        (:mod:`aiding`)."""
         aiding = self.aiding
         assert aiding is not None
         e_flat = self.bank.e_last_flat()
         if not self.fdi.faulty_axes():
             if self.fdi.armed():
-                aiding.learn(t, f_mean, e_flat, v_meas)
+                aiding.learn(t, f_mean, e_flat, v_meas, a_int_ned_mps=a_int, b_int_flat_s=b_int)
             return
         j = aiding.lost_idx
         if j is None or j != self.sel.lost_idx or len(self.fdi.faulty_axes()) != 1:

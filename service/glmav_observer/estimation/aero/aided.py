@@ -197,16 +197,32 @@ class AidedAxis:
         sigma0_mps: float,
         t0_s: float = 0.0,
         config: AidedAxisConfig | None = None,
+        *,
+        drift_rate_mps2: float | None = None,
     ) -> None:
         if lost_axis not in (0, 1, 2):
             raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
         self.lost_axis = lost_axis
         self.config = config or AidedAxisConfig()
+        #: the vehicle's measured dead-reckoning drift rate on this axis, m/s² (None: not
+        #: measured; :mod:`.drift_rate`): the published σ takes it where it exceeds the
+        #: prior σ_b (it must cover the error), propagated with the filter's own gains
+        #: (Joseph form); the filter's gains and rules keep the prior
+        self.drift_rate_mps2 = drift_rate_mps2
+        cfg = self.config
+        sigma_b = cfg.accel_bias_v_mps2 if lost_axis == 2 else cfg.accel_bias_h_mps2
+        self._sigma_b_mps2 = sigma_b
+        self._sigma_b_pub_mps2 = sigma_b
+        if drift_rate_mps2 is not None and math.isfinite(drift_rate_mps2):
+            self._sigma_b_pub_mps2 = max(sigma_b, drift_rate_mps2)
         self.v_mps = float(v0_mps)
+        #: the filter's variance (its gains and rules) and the published one, m²/s²
         self.P_mps2 = float(sigma0_mps) ** 2
+        self.P_pub_mps2 = self.P_mps2
         #: dead reckoning from the hand-over, kept for the fall-back
         self.v_dr_mps = self.v_mps
         self.P_dr_mps2 = self.P_mps2
+        self.P_dr_pub_mps2 = self.P_mps2
         self.t_s = t0_s
         self._tau_s = 0.0  # time since the hand-over (the unestimated bias acts since then)
         self._since_update_s = math.inf  # time since the last accepted update
@@ -249,15 +265,17 @@ class AidedAxis:
         if dt_s <= 0.0 or not math.isfinite(a_lost):
             return
         cfg = self.config
-        sigma_b = cfg.accel_bias_v_mps2 if self.lost_axis == 2 else cfg.accel_bias_h_mps2
         # exact integral of σ_n² + 2 σ_b² τ over [τ, τ + Δt]
-        dP = cfg.accel_noise_mps2_rthz**2 * dt_s + sigma_b**2 * (
-            (self._tau_s + dt_s) ** 2 - self._tau_s**2
-        )
+        d_white = cfg.accel_noise_mps2_rthz**2 * dt_s
+        d_tau2 = (self._tau_s + dt_s) ** 2 - self._tau_s**2
+        dP = d_white + self._sigma_b_mps2**2 * d_tau2
+        dP_pub = d_white + self._sigma_b_pub_mps2**2 * d_tau2
         self.v_mps += a_lost * dt_s
         self.P_mps2 += dP
+        self.P_pub_mps2 += dP_pub
         self.v_dr_mps += a_lost * dt_s
         self.P_dr_mps2 += dP
+        self.P_dr_pub_mps2 += dP_pub
         self._tau_s += dt_s
         self._since_update_s += dt_s
         self.t_s += dt_s
@@ -368,6 +386,7 @@ class AidedAxis:
             # its data). The better of the two is the dead reckoning: the axis takes it,
             # and the next pseudo-measurement starts from there (not a stop)
             self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+            self.P_pub_mps2 = self.P_dr_pub_mps2
             self._since_update_s = math.inf
             self._dr_better = True
             self.n_dr_better += 1
@@ -375,6 +394,11 @@ class AidedAxis:
         self._dr_better = False
         self.v_mps += K * nu
         self.P_mps2 = P_post
+        if self._sigma_b_pub_mps2 == self._sigma_b_mps2:
+            self.P_pub_mps2 = P_post  # the same noise model: the same variance
+        else:
+            # the published variance with this gain (Joseph form: right for any gain)
+            self.P_pub_mps2 = max((1.0 - K) ** 2 * self.P_pub_mps2 + K * K * R, var_m)
         self._since_update_s = 0.0
         self.n_accepted += 1
         return True
@@ -384,6 +408,7 @@ class AidedAxis:
             self.stopped = True
             self.stop_reason = reason
             self.v_mps, self.P_mps2 = self.v_dr_mps, self.P_dr_mps2
+            self.P_pub_mps2 = self.P_dr_pub_mps2
 
     def _measured_axes_suspect(self, v_meas_ned_mps: Sequence[float]) -> bool:
         """Rule 1 (module docstring): True while the measured axes are suspect."""
@@ -490,4 +515,4 @@ class AidedAxis:
             why = "dead reckoning: measured axes inconsistent with the IMU"
         else:
             why = "dead reckoning: no pseudo-measurement"
-        return AidedState(self.v_mps, math.sqrt(self.P_mps2), aided, why)
+        return AidedState(self.v_mps, math.sqrt(self.P_pub_mps2), aided, why)

@@ -96,6 +96,7 @@ operations on 5-vectors per body axis plus a pseudo-measurement every 5th call.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from operator import mul
@@ -223,6 +224,14 @@ class DragModelConfig:
             "reason": "a negative fitted q leaves no root: use the linear part",
         },
     )
+    holdout_s: float = field(
+        default=10.0,
+        metadata={
+            "unit": "s",
+            "source": "requirement: the aiding's first bound is at +10 s",
+            "reason": "validate the model as a loss this long would use it",
+        },
+    )
     validate_sigma_max_mps: float = field(
         default=math.inf,
         metadata={
@@ -301,6 +310,15 @@ class DragModel:
         self._nees_sum = np.zeros(3)
         self._nees_n = np.zeros(3)
         self._nees_t_s = np.full(3, np.nan)
+        #: held-out-in-time validation (``holdout_s``): the same per NED axis for the
+        #: pseudo-measurements of a copy of the model frozen holdout_s to 2 holdout_s
+        #: earlier, that copy, the next one (frozen at the last snapshot) and its time
+        self._ho_sum = [0.0, 0.0, 0.0]
+        self._ho_n = [0.0, 0.0, 0.0]
+        self._ho_t_s = [math.nan, math.nan, math.nan]
+        self._ho_model: DragModel | None = None
+        self._ho_next: DragModel | None = None
+        self._ho_snap_t_s: float | None = None
         #: two-row pseudo-measurements since the last learn: count and EW inconsistency
         self._two_row_n = 0
         self._inconsistency = 0.0
@@ -456,9 +474,13 @@ class DragModel:
         v: FloatArray,
         control: tuple[float, float] | None,
     ) -> None:
-        """One axis in turn: how far the pseudo-measurement is from the measurement."""
+        """One axis in turn: how far the pseudo-measurement is from the measurement, of
+        the model now (one step ahead) and of its copy frozen ``holdout_s`` to 2
+        ``holdout_s`` earlier (held out in time: what a loss that long would have used)."""
         cfg = self.config
         axis = (self.n_learned // cfg.validate_every) % 3
+        if cfg.holdout_s > 0.0:
+            self._validate_held_out(t_s, f, E, v, control=control, axis=axis)
         pm = self.pseudo_measurement(
             f,
             E,
@@ -476,6 +498,76 @@ class DragModel:
         z2 = (pm.v_mps - v[axis]) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
         self._nees_sum[axis] = lam * self._nees_sum[axis] + z2
         self._nees_n[axis] = lam * self._nees_n[axis] + 1.0
+
+    def _validate_held_out(
+        self,
+        t_s: float,
+        f: FloatArray,
+        E: FloatArray,
+        v: FloatArray,
+        *,
+        control: tuple[float, float] | None,
+        axis: int,
+    ) -> None:
+        """The held-out-in-time validation of one axis (module docstring): a snapshot of
+        the model every ``holdout_s``; the previous snapshot (``holdout_s`` to 2
+        ``holdout_s`` old) makes the pseudo-measurement, with the same forgetting."""
+        cfg = self.config
+        if self._ho_snap_t_s is None or t_s - self._ho_snap_t_s >= cfg.holdout_s:
+            gap = math.inf if self._ho_snap_t_s is None else t_s - self._ho_snap_t_s
+            # a snapshot older than two periods (a gap in learning) is not this age
+            self._ho_model = self._ho_next if gap < 2.0 * cfg.holdout_s else None
+            self._ho_next = self._frozen()
+            self._ho_snap_t_s = t_s
+        held = self._ho_model
+        if held is None:
+            return
+        pm = held.pseudo_measurement(
+            f,
+            E,
+            v,
+            axis,
+            validated=False,
+            sigma_max_mps=cfg.validate_sigma_max_mps,
+            control=control,
+        )
+        if pm is None:
+            return
+        t_last = self._ho_t_s[axis]
+        lam = 1.0 if math.isnan(t_last) else math.exp(-min(t_s - t_last, cfg.max_gap_s) / cfg.tau_s)
+        self._ho_t_s[axis] = t_s
+        z2 = (pm.v_mps - float(v[axis])) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
+        self._ho_sum[axis] = lam * self._ho_sum[axis] + z2
+        self._ho_n[axis] = lam * self._ho_n[axis] + 1.0
+
+    def _frozen(self) -> DragModel:
+        """A copy of the model as it is now that later learning does not change (the
+        state a loss starting now would use), without its own held-out copies."""
+        out = copy.copy(self)
+        out._th = [list(r) for r in self._th]
+        out._Pl = [[list(r) for r in P] for P in self._Pl]
+        out._res_sum = list(self._res_sum)
+        out._s_sum = list(self._s_sum)
+        out._s2_sum = list(self._s2_sum)
+        out._nees_sum = self._nees_sum.copy()
+        out._nees_n = self._nees_n.copy()
+        out._nees_t_s = self._nees_t_s.copy()
+        out._ho_sum = list(self._ho_sum)
+        out._ho_n = list(self._ho_n)
+        out._ho_t_s = list(self._ho_t_s)
+        out._ho_model = None
+        out._ho_next = None
+        out._np_cache = None
+        return out
+
+    @property
+    def nees_held_out(self) -> FloatArray:
+        """The held-out-in-time validation's mean normalised squared error per NED axis
+        (NaN before any)."""
+        n = np.asarray(self._ho_n)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out: FloatArray = np.where(n > 0.0, np.asarray(self._ho_sum) / n, np.nan)
+        return out
 
     def _arrays(self) -> tuple[FloatArray, FloatArray]:
         if self._np_cache is None:
@@ -690,6 +782,9 @@ class DragModel:
             if n < cfg.nees_n_min:
                 return None
             nees = float(self._nees_sum[lost_axis]) / n
+            if self._ho_n[lost_axis] >= cfg.nees_n_min:
+                # held out in time (``holdout_s``): the larger of the two decides
+                nees = max(nees, self._ho_sum[lost_axis] / self._ho_n[lost_axis])
             if not nees <= cfg.nees_max:
                 return None
             scale = math.sqrt(max(1.0, nees))
