@@ -18,6 +18,13 @@ Each over every frame of the flight and over its high-rate frames alone (the eig
 messages the compiled decoder takes: what 380 of 381 design-rate datagrams are). CPU time
 (``process_time``) per frame, median of repeats measured round-robin, one core.
 
+Then the service around them (docs/deployment.md, "where a vehicle's CPU goes"): one
+vehicle's 20 s of design-rate traffic (``glmav_sitl.fleet.record_tlog``, as
+``bench_worker``) through :meth:`~glmav_observer.app.Service.feed_bytes` with no sinks,
+once as it is and once with every ``VehicleEstimator.on_sample`` answering from a
+recording of a first run: the second is decode, ingest and the service's glue without the
+estimator, everything else unchanged (the same events, records and calls).
+
 The file runs unchanged on the tree before the compiled decode (main 1605b5c) for a
 before/after pair: there the decoder's superseded-IMU prefilter is set as its service set
 it.
@@ -29,12 +36,16 @@ import gc
 import lzma
 import statistics
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, main_for
+from glmav_observer.app import Service
+from glmav_observer.config import ServiceConfig
+from glmav_observer.estimation.vehicle import VehicleEstimator
 from glmav_observer.ingest import pipeline
 from glmav_observer.ingest.framing import FrameCounters, FrameDecoder, iter_tlog
 from glmav_observer.ingest.pipeline import Ingest, IngestConfig
@@ -90,6 +101,61 @@ def _stages(frames: list[bytes], t_host: list[float]) -> dict[str, Callable[[], 
     return {BASELINE: baseline, DECODE: decode, BOTH: decode_ingest}
 
 
+def _service_rows(repeats: int) -> list[dict[str, Any]]:
+    """The service path per design-rate datagram, whole and with the estimator replayed."""
+    from glmav_sitl.fleet import record_tlog
+
+    with tempfile.TemporaryDirectory(prefix="glmav-bench-decode-") as tmp:
+        tlog = record_tlog(Path(tmp) / "design.tlog", 20.0, truth=False)
+        records = list(iter_tlog(tlog.read_bytes(), FrameCounters()))
+    datagrams = [bytes(r.msg.get_msgbuf()) for r in records]
+    t_host = [r.t_host_us * 1e-6 for r in records]
+    config = ServiceConfig(request_rates=False)
+    real = VehicleEstimator.on_sample
+    answers: list[Any] = []
+
+    def recording(est: VehicleEstimator, sample: Any) -> Any:
+        out = real(est, sample)
+        answers.append(out)
+        return out
+
+    def serve() -> tuple[float, int]:
+        svc = Service(config, [])
+        t0 = time.process_time()
+        for d, t in zip(datagrams, t_host, strict=True):
+            svc.feed_bytes("udp", d, t, datagram=True)
+        return (time.process_time() - t0) / len(datagrams) * 1e6, svc.messages
+
+    def replayed() -> tuple[float, int]:
+        it = iter(list(answers))
+        VehicleEstimator.on_sample = lambda est, sample: next(it)  # type: ignore[method-assign]
+        try:
+            return serve()
+        finally:
+            VehicleEstimator.on_sample = real  # type: ignore[method-assign]
+
+    VehicleEstimator.on_sample = recording  # type: ignore[method-assign]
+    try:
+        _, messages = serve()
+    finally:
+        VehicleEstimator.on_sample = real  # type: ignore[method-assign]
+    whole: list[float] = []
+    glue: list[float] = []
+    for _ in range(repeats):
+        whole.append(serve()[0])
+        us, n = replayed()
+        assert n == messages, (n, messages)
+        glue.append(us)
+    rows = []
+    for name, v in (
+        ("Service.feed_bytes, whole path (no sinks)", whole),
+        ("decode + ingest + glue (estimator replayed)", glue),
+    ):
+        rows.append({"stage": name, "us_per_datagram": statistics.median(v),
+                     "min_us": min(v), "max_us": max(v)})  # fmt: skip
+    return rows
+
+
 def run(quick: bool = False) -> dict[str, Any]:
     repeats = 3 if quick else 9
     records = list(iter_tlog(lzma.decompress(LOG.read_bytes()), FrameCounters()))
@@ -131,9 +197,11 @@ def run(quick: bool = False) -> dict[str, Any]:
                 "max_us": max(v),
             }
         )
+    service = _service_rows(repeats)
     return {
         "name": "bench_decode",
         "quick": quick,
+        "service": service,
         "log": LOG.name,
         "frames": len(frames),
         "high_rate_frames": len(high),
@@ -151,6 +219,8 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"{result['frames']} frames, {result['high_rate_frames']} of them high-rate; CPU time "
         f"per frame, median of {result['repeats']} round-robin repeats.{label}\n\n"
         + format_table(result["rows"])
+        + "\n\nThe service around them, one vehicle's 20 s of design-rate traffic, CPU per "
+        "datagram:\n\n" + format_table(result["service"])
     )
 
 
