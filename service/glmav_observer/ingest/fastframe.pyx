@@ -2,8 +2,8 @@
 
 ATTITUDE, RAW_IMU, SCALED_IMU, SCALED_IMU2, SCALED_IMU3, HIGHRES_IMU, LOCAL_POSITION_NED
 and SIM_STATE are 99 % of what a vehicle sends the service (design rates: 380 of 381
-datagrams a second). Their layouts are fixed (no arrays, no strings), so one C function
-per message reads a frame (MAVLink 1 or 2, signed or not) into a small extension object:
+datagrams a second). Their layouts are fixed (no arrays, no strings), so C code reads a
+frame of one (MAVLink 1 or 2, signed or not) into a small extension object:
 
 - :func:`decode` checks the frame's CRC-16/MCRF4XX with the message's CRC extra (both
   from pymavlink's generated dialect, the one source of the wire definitions) and builds
@@ -22,6 +22,7 @@ is assumed (x86, ARM): the import refuses any other.
 """
 
 import dataclasses
+import struct
 import sys
 
 from cpython.bytearray cimport PyByteArray_AS_STRING, PyByteArray_GET_SIZE
@@ -71,14 +72,25 @@ cdef enum:
     ID_SCALED_IMU2 = 116
     ID_SCALED_IMU3 = 129
 
+#: The messages decoded here, with the wire layout (struct format, MAVLink 2 extension
+#: fields included) the C code below reads, whatever pymavlink version defines them: an
+#: older one without an extension field has a prefix of it (the CRC extra covers only the
+#: base fields), anything else is refused at import rather than decoded wrong.
+_LAYOUTS = {
+    "ATTITUDE": "<Iffffff",
+    "RAW_IMU": "<QhhhhhhhhhBh",
+    "SCALED_IMU": "<Ihhhhhhhhhh",
+    "SCALED_IMU2": "<Ihhhhhhhhhh",
+    "SCALED_IMU3": "<Ihhhhhhhhhh",
+    "HIGHRES_IMU": "<QfffffffffffffHB",
+    "LOCAL_POSITION_NED": "<Iffffff",
+    "SIM_STATE": "<fffffffffffffffffffffii",
+}
 #: The messages decoded here (each a fixed layout; everything else is pymavlink's).
-FAST_MESSAGES = frozenset({
-    "ATTITUDE", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU",
-    "LOCAL_POSITION_NED", "SIM_STATE",
-})
+FAST_MESSAGES = frozenset(_LAYOUTS)
 
-# per message id < 256 (all of ours): the CRC extra and the payload size (pymavlink's
-# dialect; 0 size = not decoded here), and the message's name
+# per message id < 256 (all of ours): the CRC extra (pymavlink's dialect) and the payload
+# size (0: not decoded here), and the message's name
 cdef uint8_t _crc_extra[256]
 cdef Py_ssize_t _payload_len[256]
 cdef object _names = [None] * 256
@@ -86,8 +98,13 @@ memset(_crc_extra, 0, sizeof(_crc_extra))
 memset(_payload_len, 0, sizeof(_payload_len))
 for _name in sorted(FAST_MESSAGES):
     _cls = _dialect.mavlink_map[getattr(_dialect, "MAVLINK_MSG_ID_" + _name)]
+    if not _LAYOUTS[_name].startswith(_cls.unpacker.format):
+        raise ImportError(
+            f"glmav_observer.ingest.fastframe reads {_name} as {_LAYOUTS[_name]}; this "
+            f"pymavlink ({_dialect.__file__}) defines it as {_cls.unpacker.format}"
+        )
     _crc_extra[_cls.id] = _cls.crc_extra
-    _payload_len[_cls.id] = _cls.unpacker.size
+    _payload_len[_cls.id] = struct.calcsize(_LAYOUTS[_name])
     _names[_cls.id] = _name
 #: pymavlink told to accept bad CRCs (MAVLINK_IGNORE_CRC): then so do we
 cdef bint _ignore_crc = bool(_dialect.MAVLINK_IGNORE_CRC)
@@ -129,6 +146,8 @@ cdef inline uint16_t _crc_accumulate(const uint8_t* p, Py_ssize_t n, uint16_t cr
 
 
 cdef const uint8_t* _bytes_of(object data, Py_ssize_t* n) except NULL:
+    """The bytes of ``data``, a bytes or bytearray object (callers copy any other buffer
+    into bytes first, see :func:`_as_bytes`)."""
     if type(data) is bytes:
         n[0] = PyBytes_GET_SIZE(data)
         return <const uint8_t*>PyBytes_AS_STRING(data)
@@ -138,10 +157,19 @@ cdef const uint8_t* _bytes_of(object data, Py_ssize_t* n) except NULL:
     raise TypeError(f"bytes or bytearray expected, not {type(data).__name__}")
 
 
+cdef inline object _as_bytes(object data):
+    """``data`` itself if bytes or bytearray, else a bytes copy of its buffer (memoryview,
+    mmap, array): read in place only what cannot move."""
+    if type(data) is bytes or type(data) is bytearray:
+        return data
+    return bytes(data)
+
+
 def frame_crc(data, Py_ssize_t start, Py_ssize_t end, int crc_extra):
     """MAVLink's checksum of the frame at ``start`` in ``data`` (its bytes after the magic
     up to ``end``, the end of its payload) followed by the message's CRC extra."""
     cdef Py_ssize_t n
+    data = _as_bytes(data)
     cdef const uint8_t* p = _bytes_of(data, &n)
     if not 0 <= start < end <= n or not 0 <= crc_extra <= 255:
         raise ValueError("frame_crc: bounds or CRC extra out of range")
@@ -465,12 +493,13 @@ BAD_CRC = "bad_crc"
 
 
 def decode(data, Py_ssize_t start, Py_ssize_t length):
-    """The frame of ``length`` bytes at ``start`` in ``data`` (bytes or bytearray; its
-    header's magic byte and payload length already agreeing with ``length``), decoded:
-    a :class:`FastMessage`; :data:`BAD_CRC` when it is one of :data:`FAST_MESSAGES` with
-    a wrong checksum; None for any other message id or a frame whose header does not
-    agree with ``length`` (pymavlink's ``decode`` then decides and names the verdict)."""
+    """The candidate frame of ``length`` bytes at ``start`` in ``data`` (bytes, bytearray,
+    or any other buffer, which is copied), decoded: a :class:`FastMessage`; :data:`BAD_CRC`
+    when it is one of :data:`FAST_MESSAGES` with a wrong checksum; None for any other
+    message id, unknown incompatibility flags, or a header whose payload length does not
+    make ``length`` (pymavlink's ``decode`` then decides and names the verdict)."""
     cdef Py_ssize_t n
+    data = _as_bytes(data)
     cdef const uint8_t* buf = _bytes_of(data, &n)
     if start < 0 or length < 8 or start + length > n:
         return None

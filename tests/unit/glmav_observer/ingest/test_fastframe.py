@@ -129,8 +129,11 @@ def test_what_it_does_not_take_is_left_to_pymavlink() -> None:
     buf = b"\x00" * 5 + good + b"\x01"
     fast = fastframe.decode(buf, 5, len(good))
     assert isinstance(fast, FastMessage) and fast.get_msgbuf() == good
+    # any other buffer (a memoryview of a receive buffer, an mmap of a log) is copied
+    view = fastframe.decode(memoryview(buf), 5, len(good))  # type: ignore[arg-type]
+    assert isinstance(view, FastMessage) and _fields(view) == _fields(fast)
     with pytest.raises(TypeError):
-        fastframe.decode(memoryview(good), 0, len(good))  # type: ignore[arg-type]
+        fastframe.decode("not bytes", 0, 12)  # type: ignore[arg-type]
 
 
 def _sample(msg: Any, t_s: float = 2.0, scale: RawImuScale | None = None) -> Any:
