@@ -6,8 +6,9 @@ One vehicle's traffic at the design rates (``glmav_sitl.fleet.record_tlog``: ATT
 stage by stage with the modules' own APIs (no stage is patched out):
 
 1. ``decode``: :class:`~glmav_observer.ingest.framing.FrameDecoder` (datagram mode), bytes
-   to pymavlink messages; the baseline beside it is pymavlink's own ``parse_char`` loop
-   (what ``mavutil`` does per datagram);
+   to messages (the high-rate ones compiled, ``ingest/fastframe.pyx``; the rest by
+   pymavlink); the baseline beside it is pymavlink's own ``parse_char`` loop (what
+   ``mavutil`` does per datagram);
 2. ``ingest``: :class:`~glmav_observer.ingest.pipeline.Ingest`, messages to samples
    (clock, rates, vetting);
 3. ``estimate``: :class:`~glmav_observer.estimation.vehicle.VehicleEstimator`, samples to
@@ -96,12 +97,12 @@ def run(quick: bool = False) -> dict[str, Any]:
 
     def decode() -> int:
         dec = FrameDecoder(datagram=True, counters=FrameCounters())
-        for d, t in zip(datagrams, t_host, strict=True):
-            dec.feed(d, t)
+        for d in datagrams:
+            dec.feed(d)
         return n
 
     dec = FrameDecoder(datagram=True, counters=FrameCounters())
-    messages = [m for d, t in zip(datagrams, t_host, strict=True) for m in dec.feed(d, t)]
+    messages = [m for d in datagrams for m in dec.feed(d)]
     assert len(messages) == n, (len(messages), n)
 
     def ingest() -> int:
@@ -135,7 +136,7 @@ def run(quick: bool = False) -> dict[str, Any]:
         ing = Ingest(IngestConfig())
         est = VehicleEstimator(sysid, est_cfg)
         for d, t in zip(datagrams, t_host, strict=True):
-            for m in dec.feed(d, t):
+            for m in dec.feed(d):
                 for ev in ing.on_message(m, t):
                     if hasattr(ev, "t_boot_s"):
                         est.on_sample(ev)  # type: ignore[arg-type]

@@ -42,7 +42,6 @@ from glmav_observer.ingest.framing import (
 from glmav_observer.ingest.link_budget import LinkCapacity, fit_rates
 from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, KernelDrops, Link
 from glmav_observer.ingest.pipeline import (
-    IMU_MESSAGE_IDS,
     Admission,
     Ingest,
     IngestEvent,
@@ -188,8 +187,6 @@ class Service:
                 signing_key=self.config.signing_key,
                 signing_state=self.signing,
             )
-            # superseded IMU frames are counted without being decoded (same counters)
-            dec.set_prefilter(self.ingest.skip_superseded, IMU_MESSAGE_IDS)
         return dec
 
     def feed_bytes(
@@ -200,11 +197,8 @@ class Service:
         cap = self._capacity.get(link_id)
         if cap is not None:
             cap.rx_bytes += len(data)
-        dec = self.decoder(link_id, datagram=datagram)
-        skipped = dec.prefiltered
-        for msg in dec.feed(data, t_arrival_s):
+        for msg in self.decoder(link_id, datagram=datagram).feed(data):
             n += self.feed_message(msg, t_arrival_s, link_id)
-        self.messages += dec.prefiltered - skipped
         return n
 
     def feed_message(self, msg: Any, t_arrival_s: float, link_id: str = "") -> int:

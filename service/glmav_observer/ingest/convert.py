@@ -29,15 +29,8 @@ from typing import Any
 
 from glmav_observer.ingest.samples import (
     AidingSample,
-    AttitudeSample,
     ControlSample,
-    ImuSample,
-    ImuSource,
     Sample,
-    SecondaryImuSample,
-    TruthSample,
-    Vec3,
-    VelocitySample,
 )
 
 #: Standard gravity, for milli-g (MAVLink SCALED_IMU, ArduPilot RAW_IMU).
@@ -90,7 +83,6 @@ class TimeKind(Enum):
 # The members as module globals for the per-message paths (Python 3.11 reads a member
 # through its class with EnumType's slow attribute lookup: ~150 ns against ~10)
 TIME_BOOT_MS, TIME_USEC, TIME_NONE = TimeKind.BOOT_MS, TimeKind.USEC, TimeKind.NONE
-_HIGHRES_IMU, _SCALED_IMU, _RAW_IMU = ImuSource.HIGHRES_IMU, ImuSource.SCALED_IMU, ImuSource.RAW_IMU
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,6 +93,12 @@ class RawImuScale:
     gyro_radps_per_lsb: float = MRAD_TO_RAD
 
 
+#: Beyond any IMU's range (high-g MEMS accelerometers: ±200 g; gyros: ±4000 °/s): a value
+#: above these is corruption, not a measurement, and one would poison the estimate.
+IMU_MAX_F_MPS2 = 2000.0
+IMU_MAX_OMEGA_RADPS = 70.0
+
+
 class ConversionError(ValueError):
     """A message that cannot become a sample (reason names the counter)."""
 
@@ -109,83 +107,18 @@ class ConversionError(ValueError):
         self.reason = reason
 
 
-def message_time_us(msg: Any) -> tuple[int, TimeKind]:
-    """The raw time stamp of a sample message, in µs, and its kind."""
-    name = msg.get_type()
-    if name in ("RAW_IMU", "HIGHRES_IMU"):
-        return int(msg.time_usec), TIME_USEC
-    if name in UNTIMED_MESSAGES:
-        return 0, TIME_NONE
-    return int(msg.time_boot_ms) * 1000, TIME_BOOT_MS
-
-
-def _finite3(values: tuple[float, float, float], what: str) -> Vec3:
-    x, y, z = float(values[0]), float(values[1]), float(values[2])
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        raise ConversionError("nan_field", f"{what} not finite: {values}")
-    return (x, y, z)
-
-
-#: Beyond any IMU's range (high-g MEMS accelerometers: ±200 g; gyros: ±4000 °/s): a value
-#: above these is corruption, not a measurement, and one would poison the estimate.
-IMU_MAX_F_MPS2 = 2000.0
-IMU_MAX_OMEGA_RADPS = 70.0
-
-
-def _imu_vectors(f: Vec3, w: Vec3, name: str) -> tuple[Vec3, Vec3]:
-    # (finite here: _finite3 came first) any component beyond the range, i.e. the max of |x|
-    f0, f1, f2 = abs(f[0]), abs(f[1]), abs(f[2])
-    w0, w1, w2 = abs(w[0]), abs(w[1]), abs(w[2])
-    lim_f, lim_w = IMU_MAX_F_MPS2, IMU_MAX_OMEGA_RADPS
-    if f0 > lim_f or f1 > lim_f or f2 > lim_f or w0 > lim_w or w1 > lim_w or w2 > lim_w:
-        raise ConversionError("implausible", f"{name} beyond any IMU range: f={f} w={w}")
-    if f == (0.0, 0.0, 0.0):
-        # an accelerometer never reads exactly zero on a vehicle in gravity: absent sensor
-        raise ConversionError("imu_absent", f"{name} specific force is exactly zero")
-    return f, w
-
-
 def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
-    """Convert one decoded message (name in ``SAMPLE_MESSAGES``) stamped at ``t_boot_s``.
+    """Convert one message decoded by pymavlink (a low-rate one of ``SAMPLE_MESSAGES``:
+    ``SERVO_OUTPUT_RAW``, ``EKF_STATUS_REPORT``, ``GPS_RAW_INT``) stamped at ``t_boot_s``.
 
-    Raises :class:`ConversionError` (reason ``nan_field``, ``imu_absent``) for a message
-    that cannot be used; ``LOCAL_POSITION_NED`` keeps NaN velocities (a dropout is data).
+    The high-rate messages (``ATTITUDE``, the IMU messages, ``LOCAL_POSITION_NED``,
+    ``SIM_STATE``) are decoded by :mod:`glmav_observer.ingest.fastframe` into objects that
+    convert themselves by the rules above (``FastMessage.sample``: :class:`ConversionError`
+    ``nan_field``, ``implausible``, ``imu_absent`` for one that cannot be used;
+    ``LOCAL_POSITION_NED`` keeps NaN velocities, a dropout is data).
     """
     name = msg.get_type()
     sysid = int(msg.get_srcSystem())
-    if name == "ATTITUDE":
-        euler = _finite3((msg.roll, msg.pitch, msg.yaw), "ATTITUDE angles")
-        omega = _finite3((msg.rollspeed, msg.pitchspeed, msg.yawspeed), "ATTITUDE rates")
-        return AttitudeSample(sysid, t_boot_s, euler, omega)
-    if name == "HIGHRES_IMU":
-        f, w = _imu_vectors(
-            _finite3((msg.xacc, msg.yacc, msg.zacc), "HIGHRES_IMU acc"),
-            _finite3((msg.xgyro, msg.ygyro, msg.zgyro), "HIGHRES_IMU gyro"),
-            name,
-        )
-        return ImuSample(sysid, t_boot_s, f, w, _HIGHRES_IMU)
-    if name in ("SCALED_IMU", "RAW_IMU"):
-        if name == "SCALED_IMU":
-            ka, kw, src = MG_TO_MPS2, MRAD_TO_RAD, _SCALED_IMU
-        else:
-            ka, kw = raw_scale.accel_mps2_per_lsb, raw_scale.gyro_radps_per_lsb
-            src = _RAW_IMU
-        fa = (msg.xacc * ka, msg.yacc * ka, msg.zacc * ka)
-        fw = (msg.xgyro * kw, msg.ygyro * kw, msg.zgyro * kw)
-        f, w = _imu_vectors(_finite3(fa, f"{name} acc"), _finite3(fw, f"{name} gyro"), name)
-        return ImuSample(sysid, t_boot_s, f, w, src)
-    if name in ("SCALED_IMU2", "SCALED_IMU3"):
-        fa = (msg.xacc * MG_TO_MPS2, msg.yacc * MG_TO_MPS2, msg.zacc * MG_TO_MPS2)
-        f, _ = _imu_vectors(_finite3(fa, f"{name} acc"), (0.0, 0.0, 0.0), name)
-        return SecondaryImuSample(sysid, t_boot_s, 2 if name == "SCALED_IMU2" else 3, f)
-    if name == "LOCAL_POSITION_NED":
-        pos = (float(msg.x), float(msg.y), float(msg.z))
-        vel = (float(msg.vx), float(msg.vy), float(msg.vz))
-        return VelocitySample(sysid, t_boot_s, pos, vel)
-    if name == "SIM_STATE":
-        euler = _finite3((msg.roll, msg.pitch, msg.yaw), "SIM_STATE angles")
-        vel3 = _finite3((msg.vn, msg.ve, msg.vd), "SIM_STATE velocity")
-        return TruthSample(sysid, t_boot_s, euler, vel3)
     if name == "SERVO_OUTPUT_RAW":
         pwm = tuple(
             int(getattr(msg, f"servo{i}_raw", 0) or 0) for i in range(1, SERVO_CHANNELS + 1)

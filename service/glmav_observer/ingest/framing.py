@@ -14,15 +14,12 @@ checks the CRC with the message's CRC-extra):
   end of a datagram are a truncated frame and are dropped; in stream mode (TCP,
   serial) they wait for more bytes.
 
-Fast decode. The messages the service consumes (:data:`FAST_DECODE_MESSAGES`: the sample
-messages of ``ingest/convert.py``, ``HEARTBEAT``, ``SYSTEM_TIME``), when they come as
-unsigned MAVLink 2, are decoded without ``MAVLink.decode``'s generic path: the payload
-(zero-truncation padded back) is unpacked with the message class's own precompiled
-``struct.Struct`` into an instance of that class, with the attributes ``decode`` sets, in
-its order (:func:`fast_decode`; tests/unit/glmav_observer/ingest/test_fast_decode.py pins
-both to the same objects). A datagram of one such frame is decided in one pass, one CRC
-for the prefilter and the decoding (:meth:`FrameDecoder._feed_one`). Signed frames,
-MAVLink 1, other ids and bad CRCs take ``MAVLink.decode`` as before.
+Fast decode. The high-rate messages (ATTITUDE, the IMU messages, LOCAL_POSITION_NED,
+SIM_STATE: :data:`~glmav_observer.ingest.fastframe.FAST_MESSAGES`) are decoded straight from
+the frame bytes by the compiled :mod:`glmav_observer.ingest.fastframe` (MAVLink 1 and 2,
+signed or not; CRC with the message's CRC extra), into objects that also make their own
+samples; every other message is the dialect's ``MAVLink.decode``'s. The verdicts and
+counters are the same either way (tests/unit/glmav_observer/ingest/test_fastframe.py).
 
 Every rejection is counted by reason in ``FrameCounters`` (``bad_crc``, ``truncated``,
 ``bad_header``, ``garbage_bytes``, ``unknown_message``; with a signing key also
@@ -41,13 +38,13 @@ import logging
 import os
 import struct
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink_dialect
 
-from glmav_observer.ingest.convert import SAMPLE_MESSAGES
+from glmav_observer.ingest import fastframe
 
 logger = logging.getLogger(__name__)
 
@@ -61,11 +58,6 @@ _TLOG_STAMP = struct.Struct(">Q")
 
 #: The dialect's message class, for type hints (pymavlink ships no stubs).
 MavMessage = Any
-
-#: A frame pre-filter (see :attr:`FrameDecoder.prefilter`): (system id, component id,
-#: message id, the payload's first field as an unsigned integer, host time) -> True when
-#: the frame was consumed without being decoded.
-Prefilter = Callable[[int, int, int, int, float], bool]
 
 
 @dataclass
@@ -212,128 +204,6 @@ def _frame_length(buf: bytes | bytearray, p: int, n: int) -> int | None:
     return _HEADER_V1 + buf[p + 1] + 2
 
 
-def frame_crc(frame: bytes | bytearray, start: int, end: int, crc_extra: int) -> int:
-    """MAVLink's checksum (CRC-16/MCRF4XX) of the frame at ``start`` (its bytes after the
-    magic up to ``end``, the end of its payload) followed by the message's CRC extra:
-    the dialect's C implementation (fastcrc) when pymavlink found it, else its
-    pure-Python one."""
-    fast = mavlink_dialect.mcrf4xx
-    if fast is not None:
-        return int(fast(_EXTRA_BYTE[crc_extra], fast(frame[start + 1 : end], 0xFFFF)))
-    body = bytearray(frame[start + 1 : end])
-    body.append(crc_extra)
-    return int(mavlink_dialect.x25crc(body).crc)
-
-
-_EXTRA_BYTE = [bytes([i]) for i in range(256)]
-
-
-@dataclass(frozen=True, slots=True)
-class FastSpec:
-    """How to decode one message id without pymavlink's generic ``decode``: everything
-    comes from pymavlink's generated class (its wire-order field names, its precompiled
-    ``struct.Struct``, its CRC extra) and a prototype instance (the attributes its
-    constructor sets, in their order)."""
-
-    msg_class: Any  # a pymavlink MAVLink_*_message class (pymavlink has no stubs)
-    crc_extra: int
-    unpack_from: Callable[[bytes | bytearray, int], tuple[Any, ...]]
-    payload_len: int
-    wire_names: tuple[str, ...]
-    template: dict[str, Any]
-
-
-def fast_spec(msg_id: int) -> FastSpec | None:
-    """The fast decoding of ``msg_id``, or None where pymavlink's ``decode`` must stay
-    (unknown id, array or string fields: those it post-processes)."""
-    cls = mavlink_dialect.mavlink_map.get(msg_id)
-    if cls is None or any(n != 1 for n in cls.lengths):
-        return None
-    if any(t.startswith("char") for t in cls.fieldtypes):
-        return None
-    proto = cls(*(0 for _ in cls.fieldnames))
-    return FastSpec(
-        msg_class=cls,
-        crc_extra=cls.crc_extra,
-        unpack_from=cls.unpacker.unpack_from,
-        payload_len=cls.unpacker.size,
-        wire_names=tuple(cls.ordered_fieldnames),
-        template=dict(proto.__dict__),
-    )
-
-
-#: The messages the service consumes (ingest/pipeline.py): decoded by :meth:`FrameDecoder.
-#: _fast_decode` when they come as unsigned MAVLink 2; a message added to the ingest (to
-#: ``SAMPLE_MESSAGES``) joins this table, and any other id falls back to pymavlink.
-FAST_DECODE_MESSAGES: frozenset[str] = SAMPLE_MESSAGES | {"HEARTBEAT", "SYSTEM_TIME"}
-
-
-def _fast_table() -> dict[int, FastSpec]:
-    if mavlink_dialect.MAVLINK_IGNORE_CRC:  # pymavlink told to accept bad CRCs: its path
-        return {}
-    table: dict[int, FastSpec] = {}
-    for name in sorted(FAST_DECODE_MESSAGES):
-        msg_id = getattr(mavlink_dialect, f"MAVLINK_MSG_ID_{name}", None)
-        spec = None if msg_id is None else fast_spec(msg_id)
-        if msg_id is not None and spec is not None:
-            table[msg_id] = spec
-    return table
-
-
-#: message id -> its fast decoding (see :data:`FAST_DECODE_MESSAGES`)
-FAST_DECODE: dict[int, FastSpec] = _fast_table()
-
-_MAVLinkHeader = mavlink_dialect.MAVLink_header
-
-
-def fast_decode(frame: bytearray) -> MavMessage | None:
-    """The message of an unsigned MAVLink 2 ``frame`` (whole, length already checked by
-    the framing) whose id is in :data:`FAST_DECODE`, built as pymavlink's ``decode``
-    builds it (the same class, attributes, values and their order), or None for any
-    other frame and for a bad CRC: pymavlink's ``decode`` then decides and names the
-    rejection."""
-    if frame[0] != MAGIC_V2 or frame[2]:
-        return None
-    msg_id = frame[7] | frame[8] << 8 | frame[9] << 16
-    spec = FAST_DECODE.get(msg_id)
-    mlen = frame[1]
-    end = _HEADER_V2 + mlen
-    if spec is None or len(frame) != end + 2:
-        return None
-    crc = frame[end] | frame[end + 1] << 8
-    if frame_crc(frame, 0, end, spec.crc_extra) != crc:
-        return None
-    return _fast_message(spec, frame, msg_id, crc)
-
-
-def _fast_message(spec: FastSpec, frame: bytearray, msg_id: int, crc: int) -> MavMessage:
-    """:func:`fast_decode`'s message, the frame checked (unsigned MAVLink 2, its length,
-    its CRC). MAVLink 2 drops a payload's trailing zero bytes: padded back here."""
-    mlen = frame[1]
-    size = spec.payload_len
-    if mlen >= size:
-        values = spec.unpack_from(frame, _HEADER_V2)
-    else:
-        values = spec.unpack_from(
-            bytes(frame[_HEADER_V2 : _HEADER_V2 + mlen]) + bytes(size - mlen), 0
-        )
-    msg = spec.msg_class.__new__(spec.msg_class)
-    d = dict(spec.template)  # the constructor's attributes, in its order
-    d.update(zip(spec.wire_names, values, strict=True))
-    # what pymavlink's decode sets after construction (``_payload`` from byte 6, as it does)
-    d["_signed"] = False
-    d["_msgbuf"] = frame
-    d["_payload"] = frame[6:-2]
-    d["_crc"] = crc
-    d["_header"] = _MAVLinkHeader(msg_id, 0, frame[3], mlen, frame[4], frame[5], frame[6])
-    msg.__dict__ = d
-    return msg
-
-
-#: byte size of a MAVLink field type (the prefilter reads a payload's first field)
-_FIELD_SIZE = {"uint64_t": 8, "int64_t": 8, "uint32_t": 4, "int32_t": 4, "uint16_t": 2}
-
-
 class FrameDecoder:
     """Turns bytes into decoded MAVLink messages (MAVLink 1 and 2), counting every rejection."""
 
@@ -362,41 +232,32 @@ class FrameDecoder:
         self._datagram = datagram
         self._quiet = 0
         self.counters = counters if counters is not None else FrameCounters()
-        #: Frames of the message ids in :attr:`prefilter_ids` whose CRC is valid are
-        #: offered to this callable before they are decoded, with the payload's first
-        #: field (the time stamp of the IMU messages: ``time_usec``/``time_boot_ms``);
-        #: when it returns True the frame counts as ``frames_ok`` and ``prefiltered``
-        #: and is not decoded (2 of 3 IMU streams a vehicle sends are superseded: their
-        #: pymavlink decode was a fifth of the service's cost per message). Only for a
-        #: datagram holding one frame (UDP as vehicles send it), so that the verdict sees
-        #: the state every earlier message left; not with a signing key (a frame is
-        #: verified before anything reads it).
-        self.prefilter: Prefilter | None = None
-        #: message id -> (CRC extra, byte size of the first payload field)
-        self.prefilter_ids: dict[int, tuple[int, int]] = {}
-        self.prefiltered = 0
 
-    def _try_decode(self, frame: bytearray) -> tuple[MavMessage | None, str | None]:
-        if frame[0] == MAGIC_V2 and frame[2] & ~_IFLAG_SIGNED:
+    def _try_decode(
+        self, buf: bytes | bytearray, p: int, length: int
+    ) -> tuple[MavMessage | None, str | None]:
+        """The frame of ``length`` bytes at ``p`` in ``buf``: its message, or the reason
+        it is rejected."""
+        if buf[p] == MAGIC_V2 and buf[p + 2] & ~_IFLAG_SIGNED:
             return None, "bad_header"  # unknown incompatibility flags: cannot be parsed
-        if self._signing_key is None:
-            fast = fast_decode(frame)
-            if fast is not None:
-                return fast, None
-        try:
-            msg = self._mav.decode(frame)
-        except mavlink_dialect.MAVError as err:
-            return None, ("bad_crc" if "CRC" in err.message else "bad_header")
-        except (struct.error, ValueError, IndexError, TypeError) as err:  # defensive: dialect bugs
-            logger.debug("undecodable frame", extra={"error": str(err)})
-            return None, "bad_header"
-        if msg.get_msgId() == mavlink_dialect.MAVLINK_MSG_ID_UNKNOWN:
-            return None, "unknown_message"
-        if self._signing_key is not None:
-            return (msg, None) if self._signature_ok(frame) else (None, self._sign_reason)
+        msg = fastframe.decode(buf, p, length)
+        if msg is None:  # not one of the high-rate messages: the dialect's decode
+            try:
+                msg = self._mav.decode(bytearray(buf[p : p + length]))
+            except mavlink_dialect.MAVError as err:
+                return None, ("bad_crc" if "CRC" in err.message else "bad_header")
+            except (struct.error, ValueError, IndexError, TypeError) as err:  # dialect bugs
+                logger.debug("undecodable frame", extra={"error": str(err)})
+                return None, "bad_header"
+            if msg.get_msgId() == mavlink_dialect.MAVLINK_MSG_ID_UNKNOWN:
+                return None, "unknown_message"
+        elif msg is fastframe.BAD_CRC:
+            return None, "bad_crc"
+        if self._signing_key is not None and not self._signature_ok(buf[p : p + length]):
+            return None, self._sign_reason
         return msg, None
 
-    def _signature_ok(self, frame: bytearray) -> bool:
+    def _signature_ok(self, frame: bytes | bytearray) -> bool:
         """MAVLink 2 signature: SHA-256(key + frame without the last 6 bytes)[:6], and a
         48-bit timestamp (10 µs units) fresh by :class:`SigningState`'s rules."""
         if frame[0] != MAGIC_V2 or not frame[2] & _IFLAG_SIGNED:
@@ -415,90 +276,49 @@ class FrameDecoder:
             return False
         return True
 
-    def set_prefilter(self, prefilter: Prefilter, msg_ids: Iterable[int]) -> None:
-        """Offer valid frames of ``msg_ids`` to ``prefilter`` before decoding them."""
-        if self._signing_key is not None:
-            return
-        self.prefilter = prefilter
-        ids: dict[int, tuple[int, int]] = {}
-        for i in msg_ids:
-            cls = mavlink_dialect.mavlink_map[i]
-            first = cls.ordered_fieldnames[0]  # wire order: the first field of the payload
-            ids[i] = (cls.crc_extra, _FIELD_SIZE[cls.fieldtypes[cls.fieldnames.index(first)]])
-        self.prefilter_ids = ids
-
-    def _prefiltered(self, buf: bytearray, p: int, length: int, t_host_s: float) -> bool:
-        """The frame at ``p`` was valid and consumed by :attr:`prefilter`."""
-        if buf[p] == MAGIC_V2:
-            if buf[p + 2]:  # signed or unknown flags: the full path decides
-                return False
-            msgid = buf[p + 7] | buf[p + 8] << 8 | buf[p + 9] << 16
-            hdr, sysid, compid = _HEADER_V2, buf[p + 5], buf[p + 6]
-        else:
-            msgid, hdr, sysid, compid = buf[p + 5], _HEADER_V1, buf[p + 3], buf[p + 4]
-        spec = self.prefilter_ids.get(msgid)
-        if spec is None:
-            return False
-        crc_extra, t_size = spec
-        end = p + length - 2
-        if frame_crc(buf, p, end, crc_extra) != buf[end] | buf[end + 1] << 8:
-            return False  # the full path counts the rejection
-        # MAVLink 2 drops a payload's trailing zero bytes: a short field reads as zero
-        first = int.from_bytes(buf[p + hdr : min(p + hdr + t_size, end)], "little")
-        assert self.prefilter is not None
-        return self.prefilter(sysid, compid, msgid, first, t_host_s)
-
-    def _feed_one(self, data: bytes | bytearray, t_host_s: float) -> list[MavMessage] | None:
-        """A datagram that is exactly one valid unsigned MAVLink 2 frame of a message in
-        :data:`FAST_DECODE` (what vehicles send): what :meth:`feed`'s loop returns and
-        counts for it, with its CRC computed once for the prefilter and the decoding.
-        None for any other datagram: the loop decides."""
-        n = len(data)
-        if n < _HEADER_V2 + 2 or data[0] != MAGIC_V2 or data[2] or n != _HEADER_V2 + data[1] + 2:
-            return None
-        msg_id = data[7] | data[8] << 8 | data[9] << 16
-        spec = FAST_DECODE.get(msg_id)
-        if spec is None:
-            return None
-        end = n - 2
-        crc = data[end] | data[end + 1] << 8
-        if frame_crc(data, 0, end, spec.crc_extra) != crc:
-            return None
-        prefilter = self.prefilter
-        if prefilter is not None:
-            pre = self.prefilter_ids.get(msg_id)
-            if pre is not None:
-                # as _prefiltered: the first field, a short (zero-truncated) one reads as zero
-                first = int.from_bytes(data[_HEADER_V2 : min(_HEADER_V2 + pre[1], end)], "little")
-                if prefilter(data[5], data[6], msg_id, first, t_host_s):
-                    self.counters.add("frames_ok")
-                    self.prefiltered += 1
-                    return []
-        msg = _fast_message(spec, bytearray(data), msg_id, crc)
-        self.counters.add("frames_ok")
-        return [msg]
-
-    def feed(self, data: bytes | bytearray, t_host_s: float = 0.0) -> list[MavMessage]:
+    def feed(self, data: bytes | bytearray) -> list[MavMessage]:
         """Add bytes; return the messages completed by them (in order).
 
         In datagram mode ``data`` is one whole datagram and nothing carries over.
-        ``t_host_s`` (arrival) is passed to :attr:`prefilter`.
         """
-        if self._datagram and self._signing_key is None:
-            one = self._feed_one(data, t_host_s)
-            if one is not None:
-                return one
-        buf = self._buf
-        buf.extend(data)
+        if not self._datagram:
+            buf = self._buf
+            buf.extend(data)
+            out, p, quiet = self._scan(buf, 0, self._quiet)
+            del buf[:p]
+            self._quiet = max(0, quiet - p)
+            return out
+        n = len(data)
+        if self._signing_key is None:
+            # a datagram of one valid high-rate frame (what vehicles send): at once
+            msg = fastframe.decode(data, 0, n)
+            if msg is not None and msg is not fastframe.BAD_CRC:
+                self.counters.counts["frames_ok"] += 1
+                return [msg]
+        # a datagram of one frame: decided at once
+        if n > 2 and data[0] in (MAGIC_V2, MAGIC_V1) and _frame_length(data, 0, n) == n:
+            msg, reason = self._try_decode(data, 0, n)
+            if msg is not None:
+                self.counters.add("frames_ok")
+                return [msg]
+            assert reason is not None
+            self.counters.add(reason)  # one rejected frame; a valid one may sit inside
+            return self._scan(data, 1, n)[0]
+        return self._scan(data, 0, 0)[0]
+
+    def _scan(
+        self, buf: bytes | bytearray, p: int, quiet: int
+    ) -> tuple[list[MavMessage], int, int]:
+        """The frames in ``buf`` from ``p``: their messages, where the scan stopped (an
+        incomplete frame in stream mode) and ``quiet``.
+
+        A rejected candidate with intact boundaries (a magic byte right after it) is
+        counted once; its inner bytes are still scanned (a valid frame may sit inside a
+        span claimed by a corrupt length) but not counted again up to ``quiet``."""
         out: list[MavMessage] = []
-        p = 0
         n = len(buf)
         counters = self.counters
-        prefilter = self.prefilter
-        # A rejected candidate with intact boundaries (a magic byte right after it) is
-        # counted once; its inner bytes are still scanned (a valid frame may sit inside a
-        # span claimed by a corrupt length) but not counted again up to ``quiet``.
-        quiet = self._quiet
+        datagram = self._datagram
         while p < n:
             b = buf[p]
             if b not in (MAGIC_V2, MAGIC_V1):
@@ -511,25 +331,13 @@ class FrameDecoder:
                 continue
             length = _frame_length(buf, p, n)
             if length is None or p + length > n:
-                if self._datagram:  # nothing more will come: not a frame start, resync
+                if datagram:  # nothing more will come: not a frame start, resync
                     if p >= quiet:
                         counters.add("truncated")
                     p += 1
                     continue
                 break  # incomplete
-            # only a datagram's one frame: with frames before it in the same call, their
-            # messages (not processed yet) could change the prefilter's verdict
-            if (
-                prefilter is not None
-                and length == n
-                and self._datagram
-                and self._prefiltered(buf, p, length, t_host_s)
-            ):
-                counters.add("frames_ok")
-                self.prefiltered += 1
-                p += length
-                continue
-            msg, reason = self._try_decode(buf[p : p + length])
+            msg, reason = self._try_decode(buf, p, length)
             if msg is not None:
                 out.append(msg)
                 counters.add("frames_ok")
@@ -539,17 +347,11 @@ class FrameDecoder:
             if p >= quiet:
                 counters.add(reason)
                 if (p + length < n and buf[p + length] in (MAGIC_V1, MAGIC_V2)) or (
-                    p + length == n and self._datagram
+                    p + length == n and datagram
                 ):
                     quiet = p + length  # intact frame boundaries: one rejected frame
             p += 1  # resync on the next magic byte
-        if self._datagram:
-            self._buf = bytearray()
-            self._quiet = 0
-        else:
-            del buf[:p]
-            self._quiet = max(0, quiet - p)
-        return out
+        return out, p, quiet
 
 
 @dataclass(frozen=True, slots=True)
@@ -573,7 +375,6 @@ def iter_tlog(data: bytes, counters: FrameCounters | None = None) -> Iterator[Tl
     dec = FrameDecoder(datagram=True, counters=FrameCounters())  # only for _try_decode
     n = len(data)
     p = 0
-    view = memoryview(data)
 
     def frame_at(q: int) -> tuple[int | None, MavMessage | None, str | None]:
         if q >= n or data[q] not in (MAGIC_V1, MAGIC_V2):
@@ -581,7 +382,7 @@ def iter_tlog(data: bytes, counters: FrameCounters | None = None) -> Iterator[Tl
         length = _frame_length(data, q, n)
         if length is None or q + length > n:
             return length, None, "truncated"
-        msg, reason = dec._try_decode(bytearray(view[q : q + length]))
+        msg, reason = dec._try_decode(data, q, length)
         return length, msg, reason
 
     while p + 8 < n:

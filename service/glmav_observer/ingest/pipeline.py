@@ -29,14 +29,13 @@ from typing import Any, Protocol
 from glmav_observer.ingest.clock import ACCEPT, REORDERED, RESET, ClockConfig, VehicleClock
 from glmav_observer.ingest.convert import (
     SAMPLE_MESSAGES,
-    TIME_BOOT_MS,
+    TIME_NONE,
     UNTIMED_MESSAGES,
     ConversionError,
     RawImuScale,
-    TimeKind,
-    message_time_us,
     to_sample,
 )
+from glmav_observer.ingest.fastframe import FAST_MESSAGES, FastMessage
 from glmav_observer.ingest.link_budget import DEFAULT_BUDGET_FRACTION
 from glmav_observer.ingest.rates import RateMonitor, RateRequest
 from glmav_observer.ingest.samples import ImuSample, ImuSource, Sample
@@ -50,13 +49,6 @@ _IMU_SOURCE: dict[str, ImuSource] = {
 }
 #: The counter of each sample message received (``rx_<NAME>``), built once.
 _RX_COUNTER: dict[str, str] = {name: f"rx_{name}" for name in SAMPLE_MESSAGES}
-#: MAVLink message id of each IMU message: what :meth:`Ingest.skip_superseded` is offered
-IMU_MESSAGE_IDS: dict[int, str] = {27: "RAW_IMU", 26: "SCALED_IMU", 105: "HIGHRES_IMU"}
-_IMU_TIME_KIND: dict[str, TimeKind] = {
-    "RAW_IMU": TimeKind.USEC,
-    "SCALED_IMU": TimeKind.BOOT_MS,
-    "HIGHRES_IMU": TimeKind.USEC,
-}
 
 
 @dataclass(frozen=True, slots=True)
@@ -269,36 +261,12 @@ class Ingest:
                        extra={"sysid": sysid})  # fmt: skip
         return [VehicleEvicted(sysid)]
 
-    def skip_superseded(
-        self, sysid: int, compid: int, msgid: int, t_raw: int, t_host_s: float
-    ) -> bool:
-        """An IMU frame not decoded yet (a :class:`~glmav_observer.ingest.framing.FrameDecoder`
-        prefilter): True when :meth:`on_message` would drop it as superseded by a better
-        IMU message of the same vehicle; its counters and clock are then updated exactly
-        as :meth:`on_message` would. False: decode it and call :meth:`on_message`.
-        ``t_raw`` is the message's time field (``time_usec`` or ``time_boot_ms``)."""
-        v = self.vehicles.get(sysid)
-        if v is None or compid != v.compid or v.imu_source is None:
-            return False
-        name = IMU_MESSAGE_IDS[msgid]
-        if _IMU_SOURCE[name] >= v.imu_source or not self._slot_kept(v, t_host_s):
-            return False
-        kind = _IMU_TIME_KIND[name]
-        t_us = t_raw * 1000 if kind is TIME_BOOT_MS else t_raw
-        t_s = v.clock.peek_boot_s(t_us, kind)
-        if t_s is None or t_s - v.imu_source_t_s > self.config.imu_fallback_s:
-            return False
-        # what on_message does for this message, in its order
-        v.t_host_last_s = t_host_s
-        v.counters[_RX_COUNTER[name]] += 1
-        v.clock.to_boot_s(t_us, kind, t_host_s)
-        v.counters["imu_superseded"] += 1
-        return True
-
     def on_message(self, msg: Any, t_host_s: float) -> list[IngestEvent]:
-        """One decoded message that arrived at host time ``t_host_s``; the events it causes."""
+        """One message that arrived at host time ``t_host_s``, as :class:`~glmav_observer.
+        ingest.framing.FrameDecoder` and ``iter_tlog`` decode it (the high-rate messages
+        are :class:`~glmav_observer.ingest.fastframe.FastMessage`); the events it causes."""
         name: str = msg.get_type()
-        sysid = int(msg.get_srcSystem())
+        sysid: int = msg.get_srcSystem()
         v = self.vehicles.get(sysid)
         if name == "SYSTEM_TIME" and v is not None:
             v.clock.note_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
@@ -308,7 +276,7 @@ class Ingest:
         if name not in self.consumed:
             return self._other(name, msg, v)
         events: list[IngestEvent] = []
-        compid = int(msg.get_srcComponent())
+        compid: int = msg.get_srcComponent()
         if v is not None and compid == v.compid and not self._slot_kept(v, t_host_s):
             events = self._slot_lost(sysid)
             v = None
@@ -324,8 +292,13 @@ class Ingest:
             return events
         v.t_host_last_s = t_host_s
         v.counters[_RX_COUNTER[name]] += 1
-        t_us, kind = message_time_us(msg)
-        t_s = v.clock.to_boot_s(t_us, kind, t_host_s)
+        fast = isinstance(msg, FastMessage)
+        if fast:
+            t_s = v.clock.to_boot_s(msg.t_us, msg.time_kind, t_host_s)
+        elif name in FAST_MESSAGES:  # a caller's bug, not bad input: say it loudly
+            raise TypeError(f"{name} must come from FrameDecoder or iter_tlog (fastframe)")
+        else:  # the low-rate samples carry no usable vehicle time (UNTIMED_MESSAGES)
+            t_s = v.clock.to_boot_s(0, TIME_NONE, t_host_s)
         if t_s is None:
             return events
         src = _IMU_SOURCE.get(name)
@@ -338,7 +311,7 @@ class Ingest:
             v.counters["imu_superseded"] += 1  # a better IMU message is streaming: not decoded
             return events
         try:  # a sample that cannot be used never touches the vehicle's clock
-            sample = to_sample(msg, t_s, v.raw_scale)
+            sample = msg.sample(t_s, v.raw_scale) if fast else to_sample(msg, t_s, v.raw_scale)
         except ConversionError as err:
             v.counters[err.reason] += 1
             logger.debug("sample rejected", extra={"sysid": sysid, "reason": err.reason})
