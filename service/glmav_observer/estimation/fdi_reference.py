@@ -33,11 +33,11 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from operator import mul
 from typing import Any
 
 import numpy as np
 
+from glmav_observer.estimation.fdi_kernels import predict
 from glmav_observer.estimation.fdi_types import FdiConfig
 
 #: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1),
@@ -132,30 +132,14 @@ class Reference:
     b_anchor: tuple[float, ...]  # B at the first row (9)
     c_anchor: tuple[float, float, float]  # C at the first row
 
-    def regressors(self, axis: int, ints: Integrals) -> list[float]:
-        b_int, c_int, l_now = ints
-        k = 3 * axis
-        x = [0.0] * N_THETA
-        x[axis] = 1.0
-        x[3] = -(b_int[k] - self.b_anchor[k])
-        x[4] = -(b_int[k + 1] - self.b_anchor[k + 1])
-        x[5] = -(b_int[k + 2] - self.b_anchor[k + 2])
-        x[6] = c_int[axis] - self.c_anchor[axis]
-        x[LAG] = -l_now[axis]
-        return x
-
     def predict(
         self, axis: int, a_int_j: float, ints: Integrals, *, lagged: bool = True
     ) -> tuple[float, float]:
         """(ŷ_j, σ_pred,j) at integrals ``ints``: the measurement (``lagged``) or the
         velocity itself (the lag term left out)."""
-        x = self.regressors(axis, ints)
-        if not lagged:
-            x[LAG] = 0.0
-        mean = a_int_j + sum(map(mul, x, self.theta))
-        xv = np.asarray(x)
-        var = float(xv @ self.cov @ xv)
-        return mean, math.sqrt(max(var, 0.0))
+        return predict(
+            self.theta, self.cov, self.b_anchor, self.c_anchor, axis, a_int_j, ints, lagged
+        )
 
     @property
     def bias_body_mps2(self) -> tuple[float, float, float]:
