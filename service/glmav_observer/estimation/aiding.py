@@ -117,7 +117,7 @@ class LostAxisAiding:
         self, t_s: float, f_mean_body_mps2: Vec3, e_flat: list[float], v_ned_mps: Vec3
     ) -> None:
         """A healthy measurement (every axis measured and vetted by the FDI)."""
-        self.model.learn(t_s, f_mean_body_mps2, _e(e_flat), v_ned_mps, self._control_at(t_s))
+        self.model.learn_flat(t_s, f_mean_body_mps2, e_flat, v_ned_mps, self._control_at(t_s))
 
     def start(self, t_s: float, lost_idx: int) -> None:
         """Axis ``lost_idx`` is lost at ``t_s``: the offset starts at 0, σ the hand-over's
