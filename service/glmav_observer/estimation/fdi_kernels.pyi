@@ -1,4 +1,5 @@
 from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,3 +25,6 @@ def predict(
     ints: tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float]],
     lagged: bool,
 ) -> tuple[float, float]: ...
+def fill_rows(
+    out: NDArray[np.float64], rows: Iterable[tuple[Any, ...]], correlation_samples: float
+) -> None: ...

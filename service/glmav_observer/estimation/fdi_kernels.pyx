@@ -1,24 +1,28 @@
-"""The arithmetic of one axis's FDI test per measurement, compiled (Cython).
+"""The arithmetic of the FDI per measurement, compiled (Cython).
 
-Two kernels that every velocity measurement runs three times (once per NED axis), on
-a handful of floats each; the logic that reads them stays in Python
-(:mod:`.fdi_axis`, :mod:`.fdi_reference`):
+Kernels that every velocity measurement runs (three times: once per NED axis), on a
+handful of floats each; the logic that reads them stays in Python (:mod:`.fdi_axis`,
+:mod:`.fdi_reference`):
 
 - :func:`predict`: the reference's prediction of one axis and its σ,
   ŷ_j = A_j + x_j θ̂ and σ²_pred = x_j P x_jᵀ (:meth:`Reference.predict`);
 - :func:`residual_ratios`: the bias and noise test ratios of the recent residuals
-  (:meth:`AxisMonitor._ratios`): medians of up to ``noise_samples + 1`` floats.
+  (:meth:`AxisMonitor._ratios`): medians of up to ``noise_samples + 1`` floats;
+- :func:`fill_rows`: the reference fit's new vetted rows as rows of its array
+  (:meth:`ReferenceFit._array`).
 
 Float order. ŷ sums x_k θ̂_k left to right from 0, as ``sum(map(mul, x, θ))`` did: the
 same doubles. The medians select and average as ``statistics.median`` does (the mean of
-the two middle values for an even count), and ``(b − a)²`` is one rounded product, as
-Python's ``** 2`` is: the same doubles. σ²_pred = Σ_j (Σ_i x_i P_ij) x_j is summed in
-that order; numpy's ``x @ P @ x`` went through OpenBLAS (fused multiply-adds, its own
-blocking), so σ_pred may differ from the former value in its last bit (the golden
-replays are unchanged by it).
+the two middle values for an even count), and squares are libm's pow, as Python's
+``** 2`` is (:func:`~glmav_observer.estimation.pyfloat.py_square`): the same doubles.
+σ²_pred = Σ_j (Σ_i x_i P_ij) x_j is summed in that order; numpy's ``x @ P @ x`` went
+through OpenBLAS (fused multiply-adds, its own blocking), so σ_pred may differ from the
+former value in its last bit (every record of the corpus replays is unchanged by it).
 """
 
 from libc.math cimport fabs, isfinite, sqrt, NAN
+
+from glmav_observer.estimation.pyfloat cimport py_square
 
 #: The windows' largest size (``bias_samples``, ``noise_samples + 1``, ``own_noise_history``):
 #: a window longer than this is refused with a ValueError, never overrun.
@@ -73,16 +77,15 @@ def residual_ratios(
     cdef double buf[MAX_WINDOW]
     cdef double d2[MAX_WINDOW]
     cdef Py_ssize_t m, i
-    cdef double bias = NAN, noise = NAN, nominal, own, d
+    cdef double bias = NAN, noise = NAN, nominal, own
     m = _tail(resid, bias_samples, buf)
     if m == bias_samples:
         bias = fabs(_median(buf, m)) / bias_threshold_mps
     m = _tail(resid, noise_samples + 1, buf)
     if m == noise_samples + 1:
         for i in range(noise_samples):
-            d = buf[i + 1] - buf[i]
-            d2[i] = d * d
-        nominal = 2.0 * (sigma_r_mps * sigma_r_mps) * chi2_1_median
+            d2[i] = py_square(buf[i + 1] - buf[i])
+        nominal = 2.0 * py_square(sigma_r_mps) * chi2_1_median
         noise = _median(d2, noise_samples) / nominal / noise_ratio_threshold
         # the measurement's own noise: a noisy residual is a noisy measurement only if
         # the measurement itself is noisy (AxisMonitor._own_noise_ratio)
@@ -133,3 +136,34 @@ def predict(
         var += row * x[j]
     # max(var, 0.0) as Python's max: var unless 0 is greater (NaN and −0.0 kept)
     return mean, sqrt(0.0 if 0.0 > var else var)
+
+
+def fill_rows(double[:, ::1] out, rows, double correlation_samples):
+    """The last ``len(out)`` rows of ``rows`` (:class:`~glmav_observer.estimation.
+    fdi_reference.ReferenceFit`'s ``Row`` tuples: t, axis j, z_j, B flat 9, C, σ, L) as
+    rows of ``out`` (ROW_WIDTH = 11 columns): j, z_j, the weight 1/σ²/``correlation_samples``
+    and the regressors before the anchor is taken off: V0's indicator (3), B_j(τ) (3),
+    C_j(τ), −L_j(τ) (:meth:`ReferenceFit._fit` subtracts the first row's B_j and C_j and
+    negates the B part)."""
+    cdef Py_ssize_t m = out.shape[0], i, j, k
+    cdef double sigma
+    if out.shape[1] != 11 or m > len(rows):
+        raise ValueError(f"fill_rows: {m} rows of 11 asked, {len(rows)} held")
+    it = reversed(rows)
+    for i in range(m - 1, -1, -1):
+        _, axis, z, b_int, c_int, sigma, l_now = next(it)
+        j = axis
+        if not 0 <= j < 3:
+            raise ValueError(f"a reference row's axis is 0-2, not {j}")
+        k = 3 * j
+        out[i, 0] = j
+        out[i, 1] = z
+        out[i, 2] = 1.0 / py_square(sigma) / correlation_samples
+        out[i, 3] = 1.0 if j == 0 else 0.0
+        out[i, 4] = 1.0 if j == 1 else 0.0
+        out[i, 5] = 1.0 if j == 2 else 0.0
+        out[i, 6] = b_int[k]
+        out[i, 7] = b_int[k + 1]
+        out[i, 8] = b_int[k + 2]
+        out[i, 9] = c_int[j]
+        out[i, 10] = -(<double>l_now[j])

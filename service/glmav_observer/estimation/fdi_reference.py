@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from glmav_observer.estimation.fdi_kernels import predict
+from glmav_observer.estimation.fdi_kernels import fill_rows, predict
 from glmav_observer.estimation.fdi_types import FdiConfig
 
 #: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1),
@@ -60,8 +60,8 @@ FloatArray = np.ndarray[Any, np.dtype[np.float64]]
 #: One row's regressors: B(τ) flattened (9), C(τ) (3) and the earth-frame acceleration
 #: L(τ) (3, the IMU's mean over the last ``LAG_WINDOW_S``).
 Integrals = tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float]]
-#: The columns of :class:`ReferenceFit`'s rows as an array (:func:`_row_values`): axis, z,
-#: weight, then the N_THETA regressors.
+#: The columns of :class:`ReferenceFit`'s rows as an array (:func:`.fdi_kernels.
+#: fill_rows`): axis, z, weight, then the N_THETA regressors.
 ROW_WIDTH = 3 + N_THETA
 #: One vetted sample of :class:`ReferenceFit`: (t, axis, z_j, B(t) flat 9, C(t) 3, σ_r of
 #: the axis, L(t) 3).
@@ -74,28 +74,6 @@ Row = tuple[
     float,
     tuple[float, float, float],
 ]
-
-
-def _row_values(row: Row, correlation_samples: float) -> tuple[float, ...]:
-    """One row of :class:`ReferenceFit` as a row of its array (:data:`ROW_WIDTH`): its
-    axis j, z_j, weight 1/(σ² ``correlation_samples``) and regressors before the anchor is
-    taken off: V0's indicator (3), B_j(τ) (3), C_j(τ), −L_j(τ)
-    (:meth:`ReferenceFit._fit` subtracts the first row's B_j and C_j, negates the B part)."""
-    _, j, z, b_int, c_int, sigma, l_now = row
-    k = 3 * j
-    return (
-        j,
-        z,
-        1.0 / sigma**2 / correlation_samples,
-        1.0 if j == 0 else 0.0,
-        1.0 if j == 1 else 0.0,
-        1.0 if j == 2 else 0.0,
-        b_int[k],
-        b_int[k + 1],
-        b_int[k + 2],
-        c_int[j],
-        -l_now[j],
-    )
 
 
 def sigma_dead_reckoning_mps(cfg: FdiConfig, age_s: float) -> float:
@@ -287,8 +265,8 @@ class ReferenceFit:
         self.lag_memory_info = total
 
     def _array(self) -> FloatArray:
-        """The rows as one array (n, ROW_WIDTH), :func:`_row_values`: those of the last fit
-        still held, and the rows added since, converted once."""
+        """The rows as one array (n, ROW_WIDTH), :func:`.fdi_kernels.fill_rows`: those of the
+        last fit still held, and the rows added since, converted once."""
         rows = self.rows
         first, end = self._n_dropped, self._n_added
         kept = self._rows_array
@@ -296,12 +274,10 @@ class ReferenceFit:
             old = kept[1][first - kept[0] :]
         else:
             old = np.empty((0, ROW_WIDTH))
-        corr = self.cfg.correlation_samples
         k = len(old)
-        new = [_row_values(rows[i], corr) for i in range(k, len(rows))]
-        arr: FloatArray = np.empty((k + len(new), ROW_WIDTH))
+        arr: FloatArray = np.empty((max(len(rows), k), ROW_WIDTH))
         arr[:k] = old
-        arr[k:] = np.array(new, dtype=np.float64).reshape(len(new), ROW_WIDTH)
+        fill_rows(arr[k:], rows, self.cfg.correlation_samples)
         if not len(arr) == end - first == len(rows):
             # the counts disagree with the rows (only if ``rows`` was changed from outside
             # this class): start the array afresh from the rows as they are

@@ -12,11 +12,14 @@ whether the sample is an outlier) and, if the model learns it, :meth:`RowFits.co
 (the forgetting λ, the residual and speed sums, θ and P).
 
 Float order: every sum and product is the one ``model.py`` computed in Python floats,
-in the same order (without a control regressor the sums are written out from the first
+in the same order, σ_f² as Python's ``** 2`` (libm's pow: :mod:`~glmav_observer.
+estimation.pyfloat`) (without a control regressor the sums are written out from the first
 product; with one they start from 0, as ``sum(map(mul, ...))`` did): the same doubles.
 """
 
 from libc.math cimport fabs
+
+from glmav_observer.estimation.pyfloat cimport py_square
 
 
 cdef enum:
@@ -104,7 +107,7 @@ cdef class RowFits:
         squared) times its variance while ``trusted``."""
         cdef int j, a, b, n = self.n_param
         cdef double v0 = v_ned_mps[0], v1 = v_ned_mps[1], v2 = v_ned_mps[2]
-        cdef double rn, re, rd, s, acc, e, ppp, var_f, sig
+        cdef double rn, re, rd, s, acc, e, ppp, var_f
         cdef double phi[MAX_PARAM]
         cdef double* pa
         cdef double* pp
@@ -143,8 +146,7 @@ cdef class RowFits:
                 ppp = 0.0
                 for b in range(n):
                     ppp = ppp + phi[b] * pp[b]
-            sig = sig_f[j]
-            var_f = sig * sig
+            var_f = py_square(sig_f[j])  # sig_f[j] ** 2
             if trusted and e * e > outlier_sigma_sq * (var_f + ppp):
                 outlier = True
             self.sj[j] = s

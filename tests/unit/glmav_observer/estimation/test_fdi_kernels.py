@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from glmav_observer.estimation.fdi_axis import CHI2_1_MEDIAN
-from glmav_observer.estimation.fdi_kernels import predict, residual_ratios
+from glmav_observer.estimation.fdi_kernels import fill_rows, predict, residual_ratios
 
 
 def _ratios_oracle(  # noqa: PLR0917 -- the kernel's own arguments, in order
@@ -95,3 +95,33 @@ def test_predict_refuses_wrong_shapes() -> None:
         predict((0.0,) * 7, np.eye(8), (0.0,) * 9, (0.0,) * 3, 0, 0.0, ints, True)
     with pytest.raises(ValueError, match="axis"):
         predict((0.0,) * 8, np.eye(8), (0.0,) * 9, (0.0,) * 3, 3, 0.0, ints, True)
+
+
+def test_fill_rows_are_the_python_row_values_bit_for_bit() -> None:
+    """Each row as ReferenceFit's Python code built it: j, z, 1/σ²/corr (σ² as Python's
+    ``** 2``, libm's pow, which differs from σ·σ in ~1 of 1200 values), V0's indicator,
+    B_j, C_j, −L_j."""
+    rng = random.Random(11)
+    rows: deque[tuple[float, int, float, tuple[float, ...], tuple[float, ...], float,
+                      tuple[float, ...]]] = deque()  # fmt: skip
+    for _ in range(5000):
+        b = tuple(rng.gauss(0.0, 3.0) for _ in range(9))
+        c = tuple(rng.gauss(0.0, 1.0) for _ in range(3))
+        lag = tuple(rng.gauss(0.0, 2.0) for _ in range(3))
+        rows.append((rng.random(), rng.randint(0, 2), rng.gauss(0.0, 1.0), b, c,
+                     rng.uniform(0.001, 1.0), lag))  # fmt: skip
+    out = np.empty((4000, 11))
+    fill_rows(out, rows, 3.0)
+    got = out.tolist()
+    for row, values in zip(list(rows)[1000:], got, strict=True):
+        _, j, z, b, c, sigma, lag = row
+        k = 3 * j
+        want = [j, z, 1.0 / sigma**2 / 3.0, float(j == 0), float(j == 1), float(j == 2),
+                b[k], b[k + 1], b[k + 2], c[j], -lag[j]]  # fmt: skip
+        assert values == want  # the same doubles
+
+
+def test_fill_rows_refuses_more_rows_than_held() -> None:
+    with pytest.raises(ValueError, match="11"):
+        fill_rows(np.empty((3, 11)), deque([(0.0, 0, 0.0, (0.0,) * 9, (0.0,) * 3, 1.0,
+                                             (0.0,) * 3)]), 1.0)  # fmt: skip
