@@ -142,9 +142,9 @@ def fill_rows(double[:, ::1] out, rows, double correlation_samples):
     """The last ``len(out)`` rows of ``rows`` (:class:`~glmav_observer.estimation.
     fdi_reference.ReferenceFit`'s ``Row`` tuples: t, axis j, z_j, B flat 9, C, σ, L) as
     rows of ``out`` (ROW_WIDTH = 11 columns): j, z_j, the weight 1/σ²/``correlation_samples``
-    and the regressors before the anchor is taken off: V0's indicator (3), B_j(τ) (3),
-    C_j(τ), −L_j(τ) (:meth:`ReferenceFit._fit` subtracts the first row's B_j and C_j and
-    negates the B part)."""
+    and the regressors before the anchor is taken off: V0's indicator (3), −B_j(τ) (3),
+    C_j(τ), −L_j(τ) (:meth:`ReferenceFit._fit` subtracts the first row's −B_j and C_j:
+    −B_j(τ) − (−B_j(τ₀)) is −(B_j(τ) − B_j(τ₀)) to the bit, rounding being symmetric)."""
     cdef Py_ssize_t m = out.shape[0], i, j, k
     cdef double sigma
     if out.shape[1] != 11 or m > len(rows):
@@ -162,8 +162,8 @@ def fill_rows(double[:, ::1] out, rows, double correlation_samples):
         out[i, 3] = 1.0 if j == 0 else 0.0
         out[i, 4] = 1.0 if j == 1 else 0.0
         out[i, 5] = 1.0 if j == 2 else 0.0
-        out[i, 6] = b_int[k]
-        out[i, 7] = b_int[k + 1]
-        out[i, 8] = b_int[k + 2]
+        out[i, 6] = -(<double>b_int[k])
+        out[i, 7] = -(<double>b_int[k + 1])
+        out[i, 8] = -(<double>b_int[k + 2])
         out[i, 9] = c_int[j]
         out[i, 10] = -(<double>l_now[j])

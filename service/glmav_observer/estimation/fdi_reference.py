@@ -283,6 +283,7 @@ class ReferenceFit:
             # this class): start the array afresh from the rows as they are
             self._rows_array = None
             self._n_dropped, self._n_added = 0, len(rows)
+            self.rows_per_axis = [sum(1 for r in rows if r[1] == k) for k in range(3)]
             return self._array()
         self._rows_array = (first, arr)
         return arr
@@ -300,19 +301,22 @@ class ReferenceFit:
         # contiguous arrays of their own, as BLAS (XtW @ z) has always been given them
         z = arr[:, 1].copy()
         w = arr[:, 2].copy()
-        # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) and C_j(τ) − C_j(τ₀)
+        # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) (the array holds
+        # −B_j) and C_j(τ) − C_j(τ₀)
         anchor = np.array(
-            [x for j in range(3) for x in (0.0, 0.0, 0.0, *b0[3 * j : 3 * j + 3], c0[j], 0.0)]
+            [
+                x
+                for j in range(3)
+                for x in (0.0, 0.0, 0.0, -b0[3 * j], -b0[3 * j + 1], -b0[3 * j + 2], c0[j], 0.0)
+            ]
         ).reshape(3, N_THETA)
         X = np.subtract(arr[:, 3:], anchor.take(axes, axis=0), order="C")
-        np.negative(X[:, 3:6], out=X[:, 3:6])
         prior = np.array(
             [_V0_PRECISION] * 3
             + [1.0 / cfg.prior_bias_mps2**2] * 3
             + [1.0 / cfg.prior_yaw_rad**2, 1.0 / cfg.prior_lag_s**2]
         )
-        rows_per_axis = np.bincount(axes, minlength=3).tolist()
-        present = [k for k in range(3) if rows_per_axis[k] > 0]
+        present = [k for k in range(3) if self.rows_per_axis[k] > 0]
         old = self.ref
         lag_prior = self._lag_prior()
         if self.frozen_bias and old is not None:

@@ -100,7 +100,7 @@ def test_predict_refuses_wrong_shapes() -> None:
 def test_fill_rows_are_the_python_row_values_bit_for_bit() -> None:
     """Each row as ReferenceFit's Python code built it: j, z, 1/σ²/corr (σ² as Python's
     ``** 2``, libm's pow, which differs from σ·σ in ~1 of 1200 values), V0's indicator,
-    B_j, C_j, −L_j."""
+    −B_j, C_j, −L_j."""
     rng = random.Random(11)
     rows: deque[tuple[float, int, float, tuple[float, ...], tuple[float, ...], float,
                       tuple[float, ...]]] = deque()  # fmt: skip
@@ -117,7 +117,7 @@ def test_fill_rows_are_the_python_row_values_bit_for_bit() -> None:
         _, j, z, b, c, sigma, lag = row
         k = 3 * j
         want = [j, z, 1.0 / sigma**2 / 3.0, float(j == 0), float(j == 1), float(j == 2),
-                b[k], b[k + 1], b[k + 2], c[j], -lag[j]]  # fmt: skip
+                -b[k], -b[k + 1], -b[k + 2], c[j], -lag[j]]  # fmt: skip
         assert values == want  # the same doubles
 
 
