@@ -688,7 +688,7 @@ class DragModel:
             scale = math.sqrt(max(1.0, nees))
         ok, _ = self._row_tests()
         sig_f = self._sigma_f_list()
-        th_rows, p_rows = self._lists()
+        th_rows = self._lists()[0]
         known = [i for i in range(3) if i != lost_axis]
         parts: list[tuple[float, float, float]] = []
         for j in range(2):
@@ -721,11 +721,7 @@ class DragModel:
             phi: tuple[float, ...] = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
             if rho is not None:
                 phi = (*phi, rho[j])
-            P = p_rows[j]
-            n_p = len(phi)
-            var_model = (
-                sum(phi[a] * sum(P[a][b] * phi[b] for b in range(n_p)) for a in range(n_p)) / g2
-            )
+            var_model = self._rows.quad_form(j, phi) / g2  # φᵀ P_j φ
             var_white = (
                 sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
             ) / g2

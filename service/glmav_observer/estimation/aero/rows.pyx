@@ -155,6 +155,23 @@ cdef class RowFits:
             self.var_f[j] = var_f
         return outlier
 
+    def quad_form(self, int j, phi):
+        """φᵀ P_j φ of row ``j`` (φ: n floats), summed as Σ_a φ_a (Σ_b P_ab φ_b), each sum
+        from 0 (as Python's ``sum`` of the products)."""
+        cdef int a, b, n = self.n_param
+        cdef double x[MAX_PARAM]
+        cdef double inner, acc = 0.0
+        if not 0 <= j < 2 or len(phi) != n:
+            raise ValueError(f"quad_form: row 0 or 1 and {n} regressors")
+        for a in range(n):
+            x[a] = phi[a]
+        for a in range(n):
+            inner = 0.0
+            for b in range(n):
+                inner = inner + self.P[j][a][b] * x[b]
+            acc = acc + x[a] * inner
+        return acc
+
     def commit(self, double lam):
         """Learn the sample of the last :meth:`terms` with forgetting ``lam``: the sums,
         then Λ ← λΛ + φφᵀ/σ_f² in covariance form (P/λ and the Sherman-Morrison

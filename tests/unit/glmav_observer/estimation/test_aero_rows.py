@@ -88,3 +88,20 @@ def test_rows_are_the_python_floats_bit_for_bit(n_param: int) -> None:
 def test_rows_refuse_other_sizes() -> None:
     with pytest.raises(ValueError, match="5 or 6"):
         RowFits(4, [[0.0] * 4] * 2, [[[0.0] * 4] * 4] * 2)
+
+
+@pytest.mark.parametrize("n_param", [5, 6])
+def test_quad_form_is_the_python_nested_sum(n_param: int) -> None:
+    rng = random.Random(10 + n_param)
+    for _ in range(200):
+        P = [[[rng.gauss(0.0, 1.0) for _ in range(n_param)] for _ in range(n_param)]
+             for _ in range(2)]  # fmt: skip
+        rows = RowFits(n_param, [[0.0] * n_param] * 2, P)
+        phi = tuple(rng.gauss(0.0, 3.0) for _ in range(n_param))
+        for j in range(2):
+            want = sum(
+                phi[a] * sum(P[j][a][b] * phi[b] for b in range(n_param)) for a in range(n_param)
+            )
+            assert rows.quad_form(j, phi) == want  # the same doubles
+    with pytest.raises(ValueError, match="regressors"):
+        rows.quad_form(0, phi[:-1])
