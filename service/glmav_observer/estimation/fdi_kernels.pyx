@@ -47,15 +47,16 @@ cdef double _median(double* buf, Py_ssize_t n) noexcept:
 
 
 cdef Py_ssize_t _tail(object seq, Py_ssize_t n, double* out) except -1:
-    """The last min(n, len(seq)) floats of ``seq`` (a deque or list) into out; their count."""
-    cdef list items = list(seq)
-    cdef Py_ssize_t size = len(items)
+    """The last min(n, len(seq)) floats of ``seq`` (a deque or list) into out, in order
+    (read from the end: no copy of the window); their count."""
+    cdef Py_ssize_t size = len(seq)
     cdef Py_ssize_t m = n if n < size else size
     cdef Py_ssize_t i
     if m > MAX_WINDOW:
         raise ValueError(f"an FDI window of {m} samples exceeds {MAX_WINDOW}")
-    for i in range(m):
-        out[i] = <double>items[size - m + i]
+    it = reversed(seq)
+    for i in range(m - 1, -1, -1):
+        out[i] = <double>next(it)
     return m
 
 
