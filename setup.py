@@ -22,6 +22,8 @@ MODULES = [
     ("glmav_observer.estimation.despike", "service/glmav_observer/estimation/despike.pyx"),
     ("glmav_observer.estimation.bank_core", "service/glmav_observer/estimation/bank_core.pyx"),
     ("glmav_observer.estimation.imu_window", "service/glmav_observer/estimation/imu_window.pyx"),
+    ("glmav_observer.estimation.fdi_kernels", "service/glmav_observer/estimation/fdi_kernels.pyx"),
+    ("glmav_observer.estimation.aero.rows", "service/glmav_observer/estimation/aero/rows.pyx"),
     ("glmav_sitl.dynamics.rhs", "sim_bridge/glmav_sitl/dynamics/rhs.pyx"),
     ("glmav_sitl.control.controller", "sim_bridge/glmav_sitl/control/controller.pyx"),
     ("glmav_sitl.mavlink.frame", "sim_bridge/glmav_sitl/mavlink/frame.pyx"),

@@ -131,7 +131,7 @@ class LostAxisAiding:
         """A healthy measurement (every axis measured and vetted by the FDI); with the
         estimator's integrals then (A = ∫EΓ dt, B = ∫E dt, ``HeldInputs``) the dead
         reckoning's drift is measured too."""
-        self.model.learn(t_s, f_mean_body_mps2, _e(e_flat), v_ned_mps, self._control_at(t_s))
+        self.model.learn_flat(t_s, f_mean_body_mps2, e_flat, v_ned_mps, self._control_at(t_s))
         if a_int_ned_mps is not None and b_int_flat_s is not None:
             self.drift.observe(t_s, a_int_ned_mps, b_int_flat_s, v_ned_mps)
 

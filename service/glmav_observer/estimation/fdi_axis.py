@@ -36,10 +36,10 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
-from itertools import islice, pairwise
 
 import numpy as np
 
+from glmav_observer.estimation.fdi_kernels import residual_ratios
 from glmav_observer.estimation.fdi_reference import (
     Integrals,
     Reference,
@@ -215,40 +215,22 @@ class AxisMonitor:
         return max(self.cfg.bias_threshold_mps, self.cfg.bias_sigma * self._scale)
 
     def _ratios(self) -> tuple[float, float]:
-        """(bias ratio, noise ratio) of the recent residuals; NaN when too few."""
-        cfg = self.cfg
-        r = list(self._resid)
-        rb = r[-cfg.bias_samples :]
-        bias = (
-            abs(statistics.median(rb)) / self.bias_threshold_mps()
-            if len(rb) == cfg.bias_samples
-            else math.nan
-        )
-        rn = r[-(cfg.noise_samples + 1) :]
-        noise = math.nan
-        if len(rn) == cfg.noise_samples + 1:
-            d2 = [(b - a) ** 2 for a, b in pairwise(rn)]
-            nominal = 2.0 * self.sigma_r_mps**2 * CHI2_1_MEDIAN
-            noise = statistics.median(d2) / nominal / cfg.noise_ratio_threshold
-            # A noisy residual is a noisy measurement only if the measurement itself is
-            # noisy: the IMU's path (an attitude estimator lost in a ballistic climb, a
-            # vibrating accelerometer) makes the residual noisy while y stays smooth.
-            own = self._own_noise_ratio()
-            if math.isfinite(own):
-                noise = min(noise, own)
-        return bias, noise
+        """(bias ratio, noise ratio) of the recent residuals; NaN when too few.
 
-    def _own_noise_ratio(self) -> float:
-        """The measurement's own noise test: the median of its last ``noise_samples``
-        squared second differences over their healthy level (NaN when too few)."""
+        Bias: |median of the last ``bias_samples`` residuals| over the bias threshold.
+        Noise: the median of the last ``noise_samples`` squared successive differences
+        over their nominal 2σ_r²·0.4549; a noisy residual is a noisy measurement only if
+        the measurement itself is noisy (the IMU's path, an attitude estimator lost in a
+        ballistic climb or a vibrating accelerometer, makes the residual noisy while y
+        stays smooth), so the lower of that and the measurement's own noise ratio (its
+        last ``noise_samples`` squared second differences over their healthy level).
+        The medians are compiled (:func:`.fdi_kernels.residual_ratios`)."""
         cfg = self.cfg
-        if len(self._d2y_sq) < cfg.noise_samples:
-            return math.nan
-        # the last noise_samples, newest first (a median does not depend on the order)
-        own = list(islice(reversed(self._d2y_sq), cfg.noise_samples))
-        return (
-            statistics.median(own) / (self.var_d2y_mps2 * CHI2_1_MEDIAN) / cfg.noise_ratio_threshold
-        )
+        return residual_ratios(
+            self._resid, self._d2y_sq, cfg.bias_samples, cfg.noise_samples,
+            self.bias_threshold_mps(), self.sigma_r_mps, self.var_d2y_mps2,
+            cfg.noise_ratio_threshold, CHI2_1_MEDIAN,
+        )  # fmt: skip
 
     def _spread_ratio(self) -> float:
         """Robust spread (1.4826 MAD) of the bias window over ``noise_spread_sigma`` σ_r: a

@@ -33,11 +33,11 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from operator import mul
 from typing import Any
 
 import numpy as np
 
+from glmav_observer.estimation.fdi_kernels import fill_rows, predict
 from glmav_observer.estimation.fdi_types import FdiConfig
 
 #: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1),
@@ -60,8 +60,8 @@ FloatArray = np.ndarray[Any, np.dtype[np.float64]]
 #: One row's regressors: B(τ) flattened (9), C(τ) (3) and the earth-frame acceleration
 #: L(τ) (3, the IMU's mean over the last ``LAG_WINDOW_S``).
 Integrals = tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float]]
-#: The columns of :class:`ReferenceFit`'s rows as an array (:func:`_row_values`): axis, z,
-#: weight, then the N_THETA regressors.
+#: The columns of :class:`ReferenceFit`'s rows as an array (:func:`.fdi_kernels.
+#: fill_rows`): axis, z, weight, then the N_THETA regressors.
 ROW_WIDTH = 3 + N_THETA
 #: One vetted sample of :class:`ReferenceFit`: (t, axis, z_j, B(t) flat 9, C(t) 3, σ_r of
 #: the axis, L(t) 3).
@@ -74,28 +74,6 @@ Row = tuple[
     float,
     tuple[float, float, float],
 ]
-
-
-def _row_values(row: Row, correlation_samples: float) -> tuple[float, ...]:
-    """One row of :class:`ReferenceFit` as a row of its array (:data:`ROW_WIDTH`): its
-    axis j, z_j, weight 1/(σ² ``correlation_samples``) and regressors before the anchor is
-    taken off: V0's indicator (3), B_j(τ) (3), C_j(τ), −L_j(τ)
-    (:meth:`ReferenceFit._fit` subtracts the first row's B_j and C_j, negates the B part)."""
-    _, j, z, b_int, c_int, sigma, l_now = row
-    k = 3 * j
-    return (
-        j,
-        z,
-        1.0 / sigma**2 / correlation_samples,
-        1.0 if j == 0 else 0.0,
-        1.0 if j == 1 else 0.0,
-        1.0 if j == 2 else 0.0,
-        b_int[k],
-        b_int[k + 1],
-        b_int[k + 2],
-        c_int[j],
-        -l_now[j],
-    )
 
 
 def sigma_dead_reckoning_mps(cfg: FdiConfig, age_s: float) -> float:
@@ -132,30 +110,14 @@ class Reference:
     b_anchor: tuple[float, ...]  # B at the first row (9)
     c_anchor: tuple[float, float, float]  # C at the first row
 
-    def regressors(self, axis: int, ints: Integrals) -> list[float]:
-        b_int, c_int, l_now = ints
-        k = 3 * axis
-        x = [0.0] * N_THETA
-        x[axis] = 1.0
-        x[3] = -(b_int[k] - self.b_anchor[k])
-        x[4] = -(b_int[k + 1] - self.b_anchor[k + 1])
-        x[5] = -(b_int[k + 2] - self.b_anchor[k + 2])
-        x[6] = c_int[axis] - self.c_anchor[axis]
-        x[LAG] = -l_now[axis]
-        return x
-
     def predict(
         self, axis: int, a_int_j: float, ints: Integrals, *, lagged: bool = True
     ) -> tuple[float, float]:
         """(ŷ_j, σ_pred,j) at integrals ``ints``: the measurement (``lagged``) or the
         velocity itself (the lag term left out)."""
-        x = self.regressors(axis, ints)
-        if not lagged:
-            x[LAG] = 0.0
-        mean = a_int_j + sum(map(mul, x, self.theta))
-        xv = np.asarray(x)
-        var = float(xv @ self.cov @ xv)
-        return mean, math.sqrt(max(var, 0.0))
+        return predict(
+            self.theta, self.cov, self.b_anchor, self.c_anchor, axis, a_int_j, ints, lagged
+        )
 
     @property
     def bias_body_mps2(self) -> tuple[float, float, float]:
@@ -303,8 +265,8 @@ class ReferenceFit:
         self.lag_memory_info = total
 
     def _array(self) -> FloatArray:
-        """The rows as one array (n, ROW_WIDTH), :func:`_row_values`: those of the last fit
-        still held, and the rows added since, converted once."""
+        """The rows as one array (n, ROW_WIDTH), :func:`.fdi_kernels.fill_rows`: those of the
+        last fit still held, and the rows added since, converted once."""
         rows = self.rows
         first, end = self._n_dropped, self._n_added
         kept = self._rows_array
@@ -312,17 +274,16 @@ class ReferenceFit:
             old = kept[1][first - kept[0] :]
         else:
             old = np.empty((0, ROW_WIDTH))
-        corr = self.cfg.correlation_samples
         k = len(old)
-        new = [_row_values(rows[i], corr) for i in range(k, len(rows))]
-        arr: FloatArray = np.empty((k + len(new), ROW_WIDTH))
+        arr: FloatArray = np.empty((max(len(rows), k), ROW_WIDTH))
         arr[:k] = old
-        arr[k:] = np.array(new, dtype=np.float64).reshape(len(new), ROW_WIDTH)
+        fill_rows(arr[k:], rows, self.cfg.correlation_samples)
         if not len(arr) == end - first == len(rows):
             # the counts disagree with the rows (only if ``rows`` was changed from outside
             # this class): start the array afresh from the rows as they are
             self._rows_array = None
             self._n_dropped, self._n_added = 0, len(rows)
+            self.rows_per_axis = [sum(1 for r in rows if r[1] == k) for k in range(3)]
             return self._array()
         self._rows_array = (first, arr)
         return arr
@@ -340,19 +301,22 @@ class ReferenceFit:
         # contiguous arrays of their own, as BLAS (XtW @ z) has always been given them
         z = arr[:, 1].copy()
         w = arr[:, 2].copy()
-        # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) and C_j(τ) − C_j(τ₀)
+        # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) (the array holds
+        # −B_j) and C_j(τ) − C_j(τ₀)
         anchor = np.array(
-            [x for j in range(3) for x in (0.0, 0.0, 0.0, *b0[3 * j : 3 * j + 3], c0[j], 0.0)]
+            [
+                x
+                for j in range(3)
+                for x in (0.0, 0.0, 0.0, -b0[3 * j], -b0[3 * j + 1], -b0[3 * j + 2], c0[j], 0.0)
+            ]
         ).reshape(3, N_THETA)
         X = np.subtract(arr[:, 3:], anchor.take(axes, axis=0), order="C")
-        np.negative(X[:, 3:6], out=X[:, 3:6])
         prior = np.array(
             [_V0_PRECISION] * 3
             + [1.0 / cfg.prior_bias_mps2**2] * 3
             + [1.0 / cfg.prior_yaw_rad**2, 1.0 / cfg.prior_lag_s**2]
         )
-        rows_per_axis = np.bincount(axes, minlength=3).tolist()
-        present = [k for k in range(3) if rows_per_axis[k] > 0]
+        present = [k for k in range(3) if self.rows_per_axis[k] > 0]
         old = self.ref
         lag_prior = self._lag_prior()
         if self.frozen_bias and old is not None:

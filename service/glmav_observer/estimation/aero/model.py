@@ -98,12 +98,14 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from operator import mul
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+
+from glmav_observer.estimation.aero.rows import RowFits
 
 FloatArray = NDArray[np.float64]
 
@@ -279,21 +281,19 @@ class DragModel:
         self._lam0_th0: FloatArray | None = (
             np.einsum("jpq,q->jp", self._lam0, np.asarray(th0)) if cfg.prior_k is not None else None
         )
-        #: θ and P = Λ⁻¹ = Cov(θ) per axis as plain floats (small fixed sizes: a learn call
-        #: in Python floats costs less than ~40 numpy calls on 5-vectors); numpy views of
-        #: them are built on demand (:attr:`_theta`, :attr:`_P`)
-        self._th: list[list[float]] = [list(th0) for _ in range(2)]
-        self._Pl: list[list[list[float]]] = np.linalg.inv(self._lam0).tolist()
+        #: θ and P = Λ⁻¹ = Cov(θ) per axis, with the residual and speed sums, in C arrays
+        #: (:class:`.rows.RowFits`: its rank-one update is compiled); as lists for the
+        #: tests and the pseudo-measurement (:meth:`_lists`), numpy arrays on demand
+        #: (:attr:`_theta`, :attr:`_P`)
+        self._rows = RowFits(n, [th0, th0], np.linalg.inv(self._lam0).tolist())
+        self._list_cache: tuple[list[list[float]], list[list[list[float]]]] | None = None
         self._np_cache: tuple[FloatArray, FloatArray] | None = None
         #: Σ (1 − λ) since the prior was last put back (module docstring)
         self._prior_due = 0.0
         self._trust_cache: tuple[tuple[bool, bool], tuple[str, str]] | None = None
-        #: exponentially weighted Σ e² σ_f²/(σ_f² + φᵀPφ) per axis, and Σ weights
-        self._res_sum = [0.0, 0.0]
+        #: Σ weights of the rows' exponentially weighted sums (``RowFits.res_sum``: Σ e²
+        #: σ_f²/(σ_f² + φᵀPφ); ``s_sum``, ``s2_sum``: of r_j·v, the body ground speed)
         self._n_eff = 0.0
-        #: exponentially weighted mean and mean square of r_j·v (body ground speed), per axis
-        self._s_sum = [0.0, 0.0]
-        self._s2_sum = [0.0, 0.0]
         self._t_last_s: float | None = None
         self.n_learned = 0
         #: samples not learnt because the cyclic regressor was missing (``control``)
@@ -336,64 +336,47 @@ class DragModel:
         rotation E (3×3) and the measured NED velocity (m/s); ``control`` the cyclic
         regressors (ρ_x, ρ_y) of (C1) (:mod:`.control`), used (and needed) with
         ``config.control``. Non-finite input is ignored."""
+        self.learn_flat(
+            t_s,
+            [float(x) for x in f_body_mps2],
+            np.asarray(E, dtype=np.float64).ravel().tolist(),
+            [float(x) for x in v_ned_mps],
+            control,
+        )
+
+    def learn_flat(
+        self,
+        t_s: float,
+        f: Sequence[float],
+        e_flat: Sequence[float],
+        v: Sequence[float],
+        control: tuple[float, float] | None = None,
+    ) -> None:
+        """:meth:`learn` with plain floats: ``e_flat`` E row-major (9), as the bank keeps
+        it (the estimator's call: no arrays built and taken apart per sample)."""
         cfg = self.config
         if cfg.control and control is None:
             self.n_no_control += 1
             return
-        f = [float(x) for x in f_body_mps2]
-        v = [float(x) for x in v_ned_mps]
-        El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
         rho = (float(control[0]), float(control[1])) if cfg.control and control else None
-        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El)) + sum(rho or ())):
+        if not math.isfinite(sum(f) + sum(v) + sum(e_flat) + sum(rho or ())):
             return  # a NaN or infinity anywhere makes the sum non-finite
         sig_f = self._sigma_f_list()
-        # per body row: (s_j, Pφ, e, φᵀPφ, σ_f²)
-        row_terms: list[tuple[float, list[float], float, float, float]] = []
-        outlier = False
         trusted = self._n_eff >= cfg.n_eff_min
         if self._t_seen_s is not None:
             gap = min(max(t_s - self._t_seen_s, 0.0), cfg.max_gap_s)
             self._outliers_recent *= math.exp(-gap / cfg.changing_window_s)
         self._t_seen_s = t_s
-        for j in range(2):
-            # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|), r_j the j-th column of E;
-            # (C1): and ρ_j with the cyclic regressor
-            rn, re, rd = El[0][j], El[1][j], El[2][j]
-            sj = rn * v[0] + re * v[1] + rd * v[2]
-            phi = [1.0, -sj, rn, re, -sj * abs(sj) if cfg.quadratic else 0.0]
-            P = self._Pl[j]
-            th = self._th[j]
-            if rho is None:  # the drag alone: written out (a third of learn's cost)
-                P_phi = [
-                    Pa[0] * phi[0]
-                    + Pa[1] * phi[1]
-                    + Pa[2] * phi[2]
-                    + Pa[3] * phi[3]
-                    + Pa[4] * phi[4]
-                    for Pa in P
-                ]
-                # one-step-ahead residual with the previous θ
-                e = f[j] - (th[0] + th[1] * phi[1] + th[2] * rn + th[3] * re + th[4] * phi[4])
-                pPp = (
-                    phi[0] * P_phi[0]
-                    + phi[1] * P_phi[1]
-                    + phi[2] * P_phi[2]
-                    + phi[3] * P_phi[3]
-                    + phi[4] * P_phi[4]
-                )
-            else:
-                phi.append(rho[j])
-                P_phi = [sum(map(mul, Pa, phi)) for Pa in P]
-                e = f[j] - sum(map(mul, th, phi))
-                pPp = sum(map(mul, phi, P_phi))
-            var_f = sig_f[j] ** 2
-            if trusted and e * e > cfg.outlier_sigma**2 * (var_f + pPp):
-                outlier = True
-            row_terms.append((sj, P_phi, e, pPp, var_f))
+        # (A1), (A2): φ_j = (1, −s_j, r_j,n, r_j,e, −s_j|s_j|) per body row, r_j the j-th
+        # column of E (and ρ_j with the cyclic regressor, (C1)); the one-step-ahead
+        # residual e = f_j − φᵀθ_prev and φᵀPφ (compiled: RowFits.terms)
+        outlier = self._rows.terms(
+            f, e_flat, v, rho, sig_f, cfg.quadratic, trusted, cfg.outlier_sigma**2
+        )
         self._two_row_n = 0
         self._inconsistency = 0.0
         if trusted and self.n_learned % cfg.validate_every == 0:
-            self._validate(t_s, np.asarray(f), np.asarray(El), np.asarray(v), rho)
+            self._validate(t_s, f, e_flat, v, rho)
         if outlier:
             self.n_outliers += 1
             self._outlier_run += 1
@@ -412,40 +395,14 @@ class DragModel:
             lam = math.exp(-dt / cfg.tau_s)
         self._t_last_s = t_s
         self._n_eff = lam * self._n_eff + 1.0
-        inv_l = 1.0 / lam
-        for j, (sj, P_phi, e, pPp, var_f) in enumerate(row_terms):
-            # σ_f: residual scaled to σ_f² by its expected variance σ_f² + φᵀPφ
-            self._res_sum[j] = lam * self._res_sum[j] + e * e * var_f / (var_f + pPp)
-            self._s_sum[j] = lam * self._s_sum[j] + sj
-            self._s2_sum[j] = lam * self._s2_sum[j] + sj * sj
-            # Λ ← λΛ + (1 − λ)Λ₀ + φφᵀ/σ_f² in covariance form: forgetting P/λ and the
-            # rank-one (Sherman-Morrison, RLS) update every sample; the prior's (1 − λ)Λ₀
-            # collected and put back exactly every ``prior_every`` samples
-            denom = var_f + pPp * inv_l
-            g = inv_l / denom  # gain K = g · Pφ
-            ge = g * e
-            self._th[j] = [t + ge * pa for t, pa in zip(self._th[j], P_phi, strict=True)]
-            c = inv_l * inv_l / denom
-            c_P_phi = [c * x for x in P_phi]
-            if rho is None:
-                p0, p1, p2, p3, p4 = P_phi
-                self._Pl[j] = [
-                    [
-                        Pr[0] * inv_l - ca * p0,
-                        Pr[1] * inv_l - ca * p1,
-                        Pr[2] * inv_l - ca * p2,
-                        Pr[3] * inv_l - ca * p3,
-                        Pr[4] * inv_l - ca * p4,
-                    ]
-                    for Pr, ca in zip(self._Pl[j], c_P_phi, strict=True)
-                ]
-            else:
-                self._Pl[j] = [
-                    [pr * inv_l - ca * pk for pr, pk in zip(Pr, P_phi, strict=True)]
-                    for Pr, ca in zip(self._Pl[j], c_P_phi, strict=True)
-                ]
+        # σ_f: residual scaled to σ_f² by its expected variance σ_f² + φᵀPφ; Λ ← λΛ +
+        # (1 − λ)Λ₀ + φφᵀ/σ_f² in covariance form: forgetting P/λ and the rank-one
+        # (Sherman-Morrison, RLS) update every sample (RowFits.commit); the prior's
+        # (1 − λ)Λ₀ collected and put back exactly every ``prior_every`` samples
+        self._rows.commit(lam)
         self._prior_due = lam * self._prior_due + (1.0 - lam)
         self.n_learned += 1
+        self._list_cache = None
         self._np_cache = None
         self._trust_cache = None
         if self.n_learned % cfg.prior_every == 0:
@@ -461,17 +418,17 @@ class DragModel:
         if self._lam0_th0 is not None:
             eta = eta + self._prior_due * self._lam0_th0
         P = np.linalg.inv(lam_old + self._prior_due * self._lam0)
-        self._Pl = P.tolist()
-        self._th = np.einsum("jpq,jq->jp", P, eta).tolist()
+        self._rows.set(np.einsum("jpq,jq->jp", P, eta).tolist(), P.tolist())
         self._prior_due = 0.0
+        self._list_cache = None
         self._np_cache = None
 
     def _validate(
         self,
         t_s: float,
-        f: FloatArray,
-        E: FloatArray,
-        v: FloatArray,
+        f: Sequence[float],
+        e_flat: Sequence[float],
+        v: Sequence[float],
         control: tuple[float, float] | None,
     ) -> None:
         """One axis in turn: how far the pseudo-measurement is from the measurement, of
@@ -480,10 +437,10 @@ class DragModel:
         cfg = self.config
         axis = (self.n_learned // cfg.validate_every) % 3
         if cfg.holdout_s > 0.0:
-            self._validate_held_out(t_s, f, E, v, control=control, axis=axis)
-        pm = self.pseudo_measurement(
+            self._validate_held_out(t_s, f, e_flat, v, control=control, axis=axis)
+        pm = self._pseudo_measurement(
             f,
-            E,
+            e_flat,
             v,
             axis,
             validated=False,
@@ -502,9 +459,9 @@ class DragModel:
     def _validate_held_out(
         self,
         t_s: float,
-        f: FloatArray,
-        E: FloatArray,
-        v: FloatArray,
+        f: Sequence[float],
+        e_flat: Sequence[float],
+        v: Sequence[float],
         *,
         control: tuple[float, float] | None,
         axis: int,
@@ -522,9 +479,9 @@ class DragModel:
         held = self._ho_model
         if held is None:
             return
-        pm = held.pseudo_measurement(
+        pm = held._pseudo_measurement(
             f,
-            E,
+            e_flat,
             v,
             axis,
             validated=False,
@@ -544,11 +501,7 @@ class DragModel:
         """A copy of the model as it is now that later learning does not change (the
         state a loss starting now would use), without its own held-out copies."""
         out = copy.copy(self)
-        out._th = [list(r) for r in self._th]
-        out._Pl = [[list(r) for r in P] for P in self._Pl]
-        out._res_sum = list(self._res_sum)
-        out._s_sum = list(self._s_sum)
-        out._s2_sum = list(self._s2_sum)
+        out._rows = self._rows.copy()
         out._nees_sum = self._nees_sum.copy()
         out._nees_n = self._nees_n.copy()
         out._nees_t_s = self._nees_t_s.copy()
@@ -557,7 +510,9 @@ class DragModel:
         out._ho_t_s = list(self._ho_t_s)
         out._ho_model = None
         out._ho_next = None
+        out._list_cache = None
         out._np_cache = None
+        out._trust_cache = None
         return out
 
     @property
@@ -569,9 +524,16 @@ class DragModel:
             out: FloatArray = np.where(n > 0.0, np.asarray(self._ho_sum) / n, np.nan)
         return out
 
+    def _lists(self) -> tuple[list[list[float]], list[list[list[float]]]]:
+        """(θ, P) per row as lists, cached until the next learnt sample."""
+        if self._list_cache is None:
+            self._list_cache = (self._rows.theta(), self._rows.cov())
+        return self._list_cache
+
     def _arrays(self) -> tuple[FloatArray, FloatArray]:
         if self._np_cache is None:
-            self._np_cache = (np.array(self._th), np.array(self._Pl))
+            th, P = self._lists()
+            self._np_cache = (np.array(th), np.array(P))
         return self._np_cache
 
     @property
@@ -607,7 +569,7 @@ class DragModel:
         if self._n_eff < 10.0:
             return [cfg.sigma_f_initial_mps2] * 2
         n = self._n_eff
-        return [max(math.sqrt(r / n), cfg.sigma_f_floor_mps2) for r in self._res_sum]
+        return [max(math.sqrt(r / n), cfg.sigma_f_floor_mps2) for r in self._rows.res_sum]
 
     @property
     def sigma_f_mps2(self) -> FloatArray:
@@ -616,7 +578,7 @@ class DragModel:
         if self._n_eff < 10.0:
             return np.full(2, cfg.sigma_f_initial_mps2)
         out: FloatArray = np.maximum(
-            np.sqrt(np.asarray(self._res_sum) / self._n_eff), cfg.sigma_f_floor_mps2
+            np.sqrt(np.asarray(self._rows.res_sum) / self._n_eff), cfg.sigma_f_floor_mps2
         )
         return out
 
@@ -641,8 +603,10 @@ class DragModel:
         """Weighted std of the body-frame ground speed r_j·v per axis, m/s."""
         if self._n_eff <= 0.0:
             return np.zeros(2)
-        m = np.asarray(self._s_sum) / self._n_eff
-        out: FloatArray = np.sqrt(np.maximum(np.asarray(self._s2_sum) / self._n_eff - m * m, 0.0))
+        m = np.asarray(self._rows.s_sum) / self._n_eff
+        out: FloatArray = np.sqrt(
+            np.maximum(np.asarray(self._rows.s2_sum) / self._n_eff - m * m, 0.0)
+        )
         return out
 
     def wind_ne_mps(self) -> tuple[float, float, float] | None:
@@ -687,12 +651,15 @@ class DragModel:
             floor2 = cfg.sigma_f_floor_mps2**2
             ok: list[bool] = []
             failed: list[str] = []
+            rows = self._rows
+            s_sum, s2_sum, res_sum = rows.s_sum, rows.s2_sum, rows.res_sum
+            th, P = self._lists()
             for j in range(2):
-                m = self._s_sum[j] / n
-                spread2 = self._s2_sum[j] / n - m * m
-                var_f = max(self._res_sum[j] / n, floor2)
-                k = self._th[j][_K]
-                var_k = self._Pl[j][_K][_K]
+                m = s_sum[j] / n
+                spread2 = s2_sum[j] / n - m * m
+                var_f = max(res_sum[j] / n, floor2)
+                k = th[j][_K]
+                var_k = P[j][_K][_K]
                 if spread2 < cfg.speed_spread_min_mps**2 and not (
                     # with an informed k, a row whose k is the prior's (the data carry at
                     # most as much information on k as the prior: posterior variance ≥
@@ -762,16 +729,40 @@ class DragModel:
         while healthy passed, σ inflated by √NEES when that is above 1. ``control``: the
         cyclic regressors (ρ_x, ρ_y) of (C1), needed with ``config.control`` (None then:
         no pseudo-measurement)."""
+        return self._pseudo_measurement(
+            [float(x) for x in f_body_mps2],
+            np.asarray(E, dtype=np.float64).ravel().tolist(),
+            [float(x) for x in v_ned_known_mps],
+            lost_axis,
+            sigma_v_known_mps=sigma_v_known_mps,
+            row_min=row_min,
+            sigma_max_mps=sigma_max_mps,
+            validated=validated,
+            control=control,
+        )
+
+    def _pseudo_measurement(
+        self,
+        f: Sequence[float],
+        e_flat: Sequence[float],
+        v_known: Sequence[float],
+        lost_axis: int,
+        *,
+        sigma_v_known_mps: float = 0.1,
+        row_min: float = 0.2,
+        sigma_max_mps: float = 1.0,
+        validated: bool = True,
+        control: tuple[float, float] | None = None,
+    ) -> PseudoMeasurement | None:
+        """:meth:`pseudo_measurement` with plain floats (``e_flat``: E row-major, 9)."""
         if lost_axis not in (0, 1, 2):
             raise ValueError(f"lost_axis must be 0, 1 or 2, got {lost_axis!r}")
         if self.config.control and control is None:
             return None
         rho = (float(control[0]), float(control[1])) if self.config.control and control else None
-        f = [float(x) for x in f_body_mps2]
-        v = [float(x) for x in v_ned_known_mps]
+        v = list(v_known)
         v[lost_axis] = 0.0
-        El: list[list[float]] = np.asarray(E, dtype=np.float64).tolist()
-        if not math.isfinite(sum(f) + sum(v) + sum(map(sum, El)) + sum(rho or ())):
+        if not math.isfinite(sum(f) + sum(v) + sum(e_flat) + sum(rho or ())):
             return None
         cfg = self.config
         scale = 1.0
@@ -790,20 +781,21 @@ class DragModel:
             scale = math.sqrt(max(1.0, nees))
         ok, _ = self._row_tests()
         sig_f = self._sigma_f_list()
+        th_rows = self._lists()[0]
         known = [i for i in range(3) if i != lost_axis]
         parts: list[tuple[float, float, float]] = []
         for j in range(2):
-            r = (El[0][j], El[1][j], El[2][j])  # r_j: the j-th column of E
+            r = (e_flat[j], e_flat[3 + j], e_flat[6 + j])  # r_j: the j-th column of E
             r_lost = r[lost_axis]
             if not ok[j] or abs(r_lost) < row_min:
                 continue
-            c, k, kwn, kwe, q = self._th[j][:N_PARAM]
+            c, k, kwn, kwe, q = th_rows[j][:N_PARAM]
             # (A2): f_j = a_j − k s_j − q s_j|s_j| with a_j = c + r_n k·w_n + r_e k·w_e
             # (+ b_j ρ_j, (C1)); solve for s_j = r_j·v (monotone while k + 2q|s| > 0): the
             # root of the quadratic on the sign branch of the linear solution
             a_j = c + r[0] * kwn + r[1] * kwe - f[j]
             if rho is not None:
-                a_j += self._th[j][N_PARAM] * rho[j]
+                a_j += th_rows[j][N_PARAM] * rho[j]
             s_j = a_j / k
             if q != 0.0:
                 sg = 1.0 if s_j >= 0.0 else -1.0
@@ -822,11 +814,7 @@ class DragModel:
             phi: tuple[float, ...] = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
             if rho is not None:
                 phi = (*phi, rho[j])
-            P = self._Pl[j]
-            n_p = len(phi)
-            var_model = (
-                sum(phi[a] * sum(P[a][b] * phi[b] for b in range(n_p)) for a in range(n_p)) / g2
-            )
+            var_model = self._rows.quad_form(j, phi) / g2  # φᵀ P_j φ
             var_white = (
                 sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
             ) / g2

@@ -116,9 +116,9 @@ def test_fit_rows_array_kept_between_fits_equals_the_rows_converted_afresh() -> 
             rows = list(fit.rows)
             n = len(rows)
             axes = np.array([r[1] for r in rows])
-            x0 = np.zeros((n, 8))  # V0's indicator, B_j, C_j, −L_j of each row's axis j
+            x0 = np.zeros((n, 8))  # V0's indicator, −B_j, C_j, −L_j of each row's axis j
             x0[np.arange(n), axes] = 1.0
-            x0[:, 3:6] = np.array([r[3] for r in rows]).reshape(n, 3, 3)[np.arange(n), axes]
+            x0[:, 3:6] = -np.array([r[3] for r in rows]).reshape(n, 3, 3)[np.arange(n), axes]
             x0[:, 6] = np.array([r[4] for r in rows])[np.arange(n), axes]
             x0[:, 7] = -np.array([r[6] for r in rows])[np.arange(n), axes]
             afresh = np.column_stack(

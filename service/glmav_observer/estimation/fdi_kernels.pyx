@@ -1,0 +1,170 @@
+"""The arithmetic of the FDI per measurement, compiled (Cython).
+
+Kernels that every velocity measurement runs (three times: once per NED axis), on a
+handful of floats each; the logic that reads them stays in Python (:mod:`.fdi_axis`,
+:mod:`.fdi_reference`):
+
+- :func:`predict`: the reference's prediction of one axis and its σ,
+  ŷ_j = A_j + x_j θ̂ and σ²_pred = x_j P x_jᵀ (:meth:`Reference.predict`);
+- :func:`residual_ratios`: the bias and noise test ratios of the recent residuals
+  (:meth:`AxisMonitor._ratios`): medians of up to ``noise_samples + 1`` floats;
+- :func:`fill_rows`: the reference fit's new vetted rows as rows of its array
+  (:meth:`ReferenceFit._array`).
+
+Float order. ŷ sums x_k θ̂_k left to right from 0, as ``sum(map(mul, x, θ))`` did: the
+same doubles. The medians select and average as ``statistics.median`` does (the mean of
+the two middle values for an even count), and squares are libm's pow, as Python's
+``** 2`` is (:func:`~glmav_observer.estimation.pyfloat.py_square`): the same doubles.
+σ²_pred = Σ_j (Σ_i x_i P_ij) x_j is summed in that order; numpy's ``x @ P @ x`` went
+through OpenBLAS (fused multiply-adds, its own blocking), so σ_pred may differ from the
+former value in its last bit (every record of the corpus replays is unchanged by it).
+"""
+
+from libc.math cimport fabs, isfinite, sqrt, NAN
+
+from glmav_observer.estimation.pyfloat cimport py_square
+
+#: The windows' largest size (``bias_samples``, ``noise_samples + 1``, ``own_noise_history``):
+#: a window longer than this is refused with a ValueError, never overrun.
+cdef enum:
+    MAX_WINDOW = 256
+
+
+cdef double _median(double* buf, Py_ssize_t n) noexcept:
+    """``statistics.median`` of buf[0:n] (n ≥ 1; sorts buf in place)."""
+    cdef Py_ssize_t i, k
+    cdef double x
+    for i in range(1, n):  # insertion sort: n is a dozen
+        x = buf[i]
+        k = i - 1
+        while k >= 0 and buf[k] > x:
+            buf[k + 1] = buf[k]
+            k -= 1
+        buf[k + 1] = x
+    if n % 2 == 1:
+        return buf[n // 2]
+    return (buf[n // 2 - 1] + buf[n // 2]) / 2.0
+
+
+cdef Py_ssize_t _tail(object seq, Py_ssize_t n, double* out) except -1:
+    """The last min(n, len(seq)) floats of ``seq`` (a deque or list) into out, in order
+    (read from the end: no copy of the window); their count."""
+    cdef Py_ssize_t size = len(seq)
+    cdef Py_ssize_t m = n if n < size else size
+    cdef Py_ssize_t i
+    if m > MAX_WINDOW:
+        raise ValueError(f"an FDI window of {m} samples exceeds {MAX_WINDOW}")
+    it = reversed(seq)
+    for i in range(m - 1, -1, -1):
+        out[i] = <double>next(it)
+    return m
+
+
+def residual_ratios(
+    resid,
+    d2y_sq,
+    Py_ssize_t bias_samples,
+    Py_ssize_t noise_samples,
+    double bias_threshold_mps,
+    double sigma_r_mps,
+    double var_d2y_mps2,
+    double noise_ratio_threshold,
+    double chi2_1_median,
+):
+    """(bias ratio, noise ratio) of an axis's recent residuals ``resid`` and the squared
+    second differences of its measurement ``d2y_sq``, ``chi2_1_median`` the median of χ²₁;
+    NaN where too few
+    (:meth:`~glmav_observer.estimation.fdi_axis.AxisMonitor._ratios`)."""
+    cdef double buf[MAX_WINDOW]
+    cdef double d2[MAX_WINDOW]
+    cdef Py_ssize_t m, i
+    cdef double bias = NAN, noise = NAN, nominal, own
+    m = _tail(resid, bias_samples, buf)
+    if m == bias_samples:
+        bias = fabs(_median(buf, m)) / bias_threshold_mps
+    m = _tail(resid, noise_samples + 1, buf)
+    if m == noise_samples + 1:
+        for i in range(noise_samples):
+            d2[i] = py_square(buf[i + 1] - buf[i])
+        nominal = 2.0 * py_square(sigma_r_mps) * chi2_1_median
+        noise = _median(d2, noise_samples) / nominal / noise_ratio_threshold
+        # the measurement's own noise: a noisy residual is a noisy measurement only if
+        # the measurement itself is noisy (AxisMonitor._own_noise_ratio)
+        m = _tail(d2y_sq, noise_samples, buf)
+        if m == noise_samples:
+            own = _median(buf, m) / (var_d2y_mps2 * chi2_1_median) / noise_ratio_threshold
+            if isfinite(own) and own < noise:
+                noise = own
+    return bias, noise
+
+
+def predict(
+    theta,
+    const double[:, ::1] cov,
+    b_anchor,
+    c_anchor,
+    Py_ssize_t axis,
+    double a_int_j,
+    ints,
+    bint lagged,
+):
+    """(ŷ_j, σ_pred,j) of :meth:`~glmav_observer.estimation.fdi_reference.Reference.
+    predict`: the regressors x_j of axis ``axis`` at ``ints`` = (B flat 9, C, L), the lag's
+    left out unless ``lagged``."""
+    cdef double x[8]
+    cdef double th[8]
+    cdef double mean = 0.0, var = 0.0, row
+    cdef Py_ssize_t i, j, k = 3 * axis
+    b_int, c_int, l_now = ints
+    if cov.shape[0] != 8 or cov.shape[1] != 8 or len(theta) != 8 or not 0 <= axis < 3:
+        raise ValueError("predict needs θ (8), P (8×8) and an axis 0-2")
+    for i in range(8):
+        th[i] = theta[i]
+        x[i] = 0.0
+    x[axis] = 1.0
+    x[3] = -(<double>b_int[k] - <double>b_anchor[k])
+    x[4] = -(<double>b_int[k + 1] - <double>b_anchor[k + 1])
+    x[5] = -(<double>b_int[k + 2] - <double>b_anchor[k + 2])
+    x[6] = <double>c_int[axis] - <double>c_anchor[axis]
+    x[7] = -(<double>l_now[axis]) if lagged else 0.0
+    for i in range(8):
+        mean += x[i] * th[i]
+    mean = a_int_j + mean
+    for j in range(8):
+        row = 0.0
+        for i in range(8):
+            row += x[i] * cov[i, j]
+        var += row * x[j]
+    # max(var, 0.0) as Python's max: var unless 0 is greater (NaN and −0.0 kept)
+    return mean, sqrt(0.0 if 0.0 > var else var)
+
+
+def fill_rows(double[:, ::1] out, rows, double correlation_samples):
+    """The last ``len(out)`` rows of ``rows`` (:class:`~glmav_observer.estimation.
+    fdi_reference.ReferenceFit`'s ``Row`` tuples: t, axis j, z_j, B flat 9, C, σ, L) as
+    rows of ``out`` (ROW_WIDTH = 11 columns): j, z_j, the weight 1/σ²/``correlation_samples``
+    and the regressors before the anchor is taken off: V0's indicator (3), −B_j(τ) (3),
+    C_j(τ), −L_j(τ) (:meth:`ReferenceFit._fit` subtracts the first row's −B_j and C_j:
+    −B_j(τ) − (−B_j(τ₀)) is −(B_j(τ) − B_j(τ₀)) to the bit, rounding being symmetric)."""
+    cdef Py_ssize_t m = out.shape[0], i, j, k
+    cdef double sigma
+    if out.shape[1] != 11 or m > len(rows):
+        raise ValueError(f"fill_rows: {m} rows of 11 asked, {len(rows)} held")
+    it = reversed(rows)
+    for i in range(m - 1, -1, -1):
+        _, axis, z, b_int, c_int, sigma, l_now = next(it)
+        j = axis
+        if not 0 <= j < 3:
+            raise ValueError(f"a reference row's axis is 0-2, not {j}")
+        k = 3 * j
+        out[i, 0] = j
+        out[i, 1] = z
+        out[i, 2] = 1.0 / py_square(sigma) / correlation_samples
+        out[i, 3] = 1.0 if j == 0 else 0.0
+        out[i, 4] = 1.0 if j == 1 else 0.0
+        out[i, 5] = 1.0 if j == 2 else 0.0
+        out[i, 6] = -(<double>b_int[k])
+        out[i, 7] = -(<double>b_int[k + 1])
+        out[i, 8] = -(<double>b_int[k + 2])
+        out[i, 9] = c_int[j]
+        out[i, 10] = -(<double>l_now[j])
