@@ -123,9 +123,9 @@ def varied(cls: str, name: str, element: int | None, factor: float) -> Iterator[
         aiding.DragModel = make_model  # type: ignore[assignment,misc]
     elif cls == "AidedAxisConfig":
 
-        def make_axis(*args: Any) -> Any:
+        def make_axis(*args: Any, **kwargs: Any) -> Any:
             *rest, cfg = args
-            return axis(*rest, change(cfg or AidedAxisConfig()))
+            return axis(*rest, change(cfg or AidedAxisConfig()), **kwargs)
 
         aiding.AidedAxis = make_axis  # type: ignore[assignment,misc]
     else:
