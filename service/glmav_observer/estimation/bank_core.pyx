@@ -180,7 +180,6 @@ cdef class BankCore:
         cdef double fb[3]
         cdef double y[3]
         cdef double b[3]
-        cdef double fr[3]
         cdef bint ok[3]
         cdef int lost[4]
         cdef int i, k, n, l_
@@ -218,11 +217,7 @@ cdef class BankCore:
         cdef double rho[3]
         e_flat_c(eul[0], eul[1], eul[2], self.E)
         if propagate:
-            fr[0] = f[0] - b[0]
-            fr[1] = f[1] - b[1]
-            fr[2] = f[2] - b[2]
-            rotate_c(self.E, fr, rho)
-            rho[2] += self.g_mps2
+            inputs.y_rate_c(self.E, f, b, rho)
         self.step_c(dt, w, fb, y, lost, rho if propagate else NULL)
         for i in range(4):
             self.last_lost[i] = lost[i]

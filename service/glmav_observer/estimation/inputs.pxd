@@ -16,6 +16,7 @@ cdef class HeldInputs:
     cdef Py_ssize_t h_cap, h_start, h_len
 
     cdef void y_for_step_c(self, const double* b, bint propagate, double* out) noexcept
+    cdef void y_rate_c(self, const double* E, const double* f, const double* b, double* out) noexcept
     cdef void _hist_push(self, double t, const double* ai) except *
     cdef double* _hist_at(self, Py_ssize_t i) noexcept
     cdef void integrate_c(self, double t, double dt, const double* E, const double* f) except *

@@ -29,7 +29,7 @@ Every sum is the former Python code's, in its order (setup.py: no fused multiply
 from libc.stdlib cimport free, malloc
 from libc.string cimport memcpy
 
-from glmav_observer.rotation cimport load3, rotate_c
+from glmav_observer.rotation cimport e_flat_c, load3, rotate_c
 
 from glmav_observer.estimation.fdi_reference import LAG_WINDOW_S as _LAG_WINDOW_S
 
@@ -159,6 +159,30 @@ cdef class HeldInputs:
         cdef double out[3]
         load3(bias_body_mps2, b)
         self.y_for_step_c(b, propagate, out)
+        return [out[0], out[1], out[2]]
+
+    cdef void y_rate_c(self, const double* E, const double* f, const double* b, double* out) noexcept:
+        """The rate of :meth:`y_for_step`'s propagated measurement over a step with the
+        attitude's E and the specific force ``f`` held: d/dt (ΔA − ΔB b̂) = E (f − b̂) + g e_d
+        (NED, m/s²; the bank's ramp, observer.zoh_step's ``y_rate_ned_mps2``)."""
+        cdef double fr[3]
+        fr[0] = f[0] - b[0]
+        fr[1] = f[1] - b[1]
+        fr[2] = f[2] - b[2]
+        rotate_c(E, fr, out)
+        out[2] += self.g_mps2
+
+    def y_rate(self, bias_body_mps2):
+        """:meth:`y_rate_c` at the held attitude and specific force (both must be held)."""
+        cdef double E[9]
+        cdef double f[3]
+        cdef double b[3]
+        cdef double out[3]
+        phi, theta, psi = self.euler_rad
+        e_flat_c(phi, theta, psi, E)
+        load3(self.f_body_mps2, f)
+        load3(bias_body_mps2, b)
+        self.y_rate_c(E, f, b, out)
         return [out[0], out[1], out[2]]
 
     cdef void _hist_push(self, double t, const double* ai) except *:

@@ -79,7 +79,6 @@ from glmav_observer.estimation.seed import (
 )
 from glmav_observer.estimation.selection import ActiveSelection, SwitchEvent
 from glmav_observer.estimation.streams import StreamTiming
-from glmav_observer.frames import e_flat as e_flat_of
 from glmav_observer.frames import rotate_flat
 from glmav_observer.ingest.samples import (
     AidingSample,
@@ -349,11 +348,7 @@ class VehicleEstimator:
         if fallback:
             y = inputs.y_for_step(bias, propagate)
             mask = None if all(self._use) else self._use
-            y_rate = None
-            if propagate:  # the propagated y's ramp, E (f − b̂) + g e_d (BankCore.advance)
-                fr = [f[0] - bias[0], f[1] - bias[1], f[2] - bias[2]]
-                y_rate = rotate_flat(e_flat_of(*inputs.euler_rad), fr)
-                y_rate[2] += self.cfg.g_mps2
+            y_rate = inputs.y_rate(bias) if propagate else None  # the propagated y's ramp
             self.bank.step_floats(
                 dt, inputs.euler_rad, inputs.omega_radps(), f_bank, y, mask, y_rate
             )
