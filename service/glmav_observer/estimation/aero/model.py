@@ -98,7 +98,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Sequence
+from collections.abc import MutableSequence, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -262,6 +262,14 @@ class Trust(NamedTuple):
     reason: str
 
 
+def _mean_z2(z_sum: Sequence[float], z_n: Sequence[float]) -> FloatArray:
+    """Σ z² / Σ weights per NED axis, NaN where there is no weight yet."""
+    n = np.asarray(z_n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out: FloatArray = np.where(n > 0.0, np.asarray(z_sum) / n, np.nan)
+    return out
+
+
 class DragModel:
     """Per-body-axis (x, y) drag with wind, learnt online (see the module docstring)."""
 
@@ -307,9 +315,9 @@ class DragModel:
         self._t_seen_s: float | None = None
         #: per NED axis: exponentially weighted Σ z² and Σ weights of the validation
         #: z = (pseudo-measurement − measured) / √(σ² + σ_meas²), and its last time
-        self._nees_sum = np.zeros(3)
-        self._nees_n = np.zeros(3)
-        self._nees_t_s = np.full(3, np.nan)
+        self._nees_sum = [0.0, 0.0, 0.0]
+        self._nees_n = [0.0, 0.0, 0.0]
+        self._nees_t_s = [math.nan, math.nan, math.nan]
         #: held-out-in-time validation (``holdout_s``): the same per NED axis for the
         #: pseudo-measurements of a copy of the model frozen holdout_s to 2 holdout_s
         #: earlier, that copy, the next one (frozen at the last snapshot) and its time
@@ -437,38 +445,17 @@ class DragModel:
         cfg = self.config
         axis = (self.n_learned // cfg.validate_every) % 3
         if cfg.holdout_s > 0.0:
-            self._validate_held_out(t_s, f, e_flat, v, control=control, axis=axis)
-        pm = self._pseudo_measurement(
-            f,
-            e_flat,
-            v,
-            axis,
-            validated=False,
-            sigma_max_mps=self.config.validate_sigma_max_mps,
-            control=control,
-        )
-        if pm is None:
-            return
-        t_last = self._nees_t_s[axis]
-        lam = 1.0 if math.isnan(t_last) else math.exp(-min(t_s - t_last, cfg.max_gap_s) / cfg.tau_s)
-        self._nees_t_s[axis] = t_s
-        z2 = (pm.v_mps - v[axis]) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
-        self._nees_sum[axis] = lam * self._nees_sum[axis] + z2
-        self._nees_n[axis] = lam * self._nees_n[axis] + 1.0
+            held = self._held_out_model(t_s)
+            if held is not None:
+                sums = (self._ho_sum, self._ho_n, self._ho_t_s)
+                self._score(held, sums, t_s, f, e_flat, v, control, axis)
+        sums = (self._nees_sum, self._nees_n, self._nees_t_s)
+        self._score(self, sums, t_s, f, e_flat, v, control, axis)
 
-    def _validate_held_out(
-        self,
-        t_s: float,
-        f: Sequence[float],
-        e_flat: Sequence[float],
-        v: Sequence[float],
-        *,
-        control: tuple[float, float] | None,
-        axis: int,
-    ) -> None:
-        """The held-out-in-time validation of one axis (module docstring): a snapshot of
-        the model every ``holdout_s``; the previous snapshot (``holdout_s`` to 2
-        ``holdout_s`` old) makes the pseudo-measurement, with the same forgetting."""
+    def _held_out_model(self, t_s: float) -> DragModel | None:
+        """The copy of the model frozen ``holdout_s`` to 2 ``holdout_s`` ago (module
+        docstring), None before there is one: a snapshot every ``holdout_s``, the
+        previous one validated (held out in time, as a loss that long would use it)."""
         cfg = self.config
         if self._ho_snap_t_s is None or t_s - self._ho_snap_t_s >= cfg.holdout_s:
             gap = math.inf if self._ho_snap_t_s is None else t_s - self._ho_snap_t_s
@@ -476,10 +463,24 @@ class DragModel:
             self._ho_model = self._ho_next if gap < 2.0 * cfg.holdout_s else None
             self._ho_next = self._frozen()
             self._ho_snap_t_s = t_s
-        held = self._ho_model
-        if held is None:
-            return
-        pm = held._pseudo_measurement(
+        return self._ho_model
+
+    def _score(  # noqa: PLR0917 -- the sums, then the sample the model is scored on
+        self,
+        model: DragModel,
+        sums: tuple[MutableSequence[float], MutableSequence[float], MutableSequence[float]],
+        t_s: float,
+        f: Sequence[float],
+        e_flat: Sequence[float],
+        v: Sequence[float],
+        control: tuple[float, float] | None,
+        axis: int,
+    ) -> None:
+        """``model``'s pseudo-measurement of ``axis`` against the measurement ``v``: its
+        z² = (pm − v)² / (σ² + σ_meas²) into ``sums`` (Σ z², Σ weights, last time per
+        axis), forgotten with time constant ``tau_s``."""
+        cfg = self.config
+        pm = model._pseudo_measurement(
             f,
             e_flat,
             v,
@@ -490,21 +491,22 @@ class DragModel:
         )
         if pm is None:
             return
-        t_last = self._ho_t_s[axis]
+        z_sum, z_n, z_t = sums
+        t_last = z_t[axis]
         lam = 1.0 if math.isnan(t_last) else math.exp(-min(t_s - t_last, cfg.max_gap_s) / cfg.tau_s)
-        self._ho_t_s[axis] = t_s
+        z_t[axis] = t_s
         z2 = (pm.v_mps - float(v[axis])) ** 2 / (pm.sigma_mps**2 + cfg.sigma_v_meas_mps**2)
-        self._ho_sum[axis] = lam * self._ho_sum[axis] + z2
-        self._ho_n[axis] = lam * self._ho_n[axis] + 1.0
+        z_sum[axis] = lam * z_sum[axis] + z2
+        z_n[axis] = lam * z_n[axis] + 1.0
 
     def _frozen(self) -> DragModel:
         """A copy of the model as it is now that later learning does not change (the
         state a loss starting now would use), without its own held-out copies."""
         out = copy.copy(self)
         out._rows = self._rows.copy()
-        out._nees_sum = self._nees_sum.copy()
-        out._nees_n = self._nees_n.copy()
-        out._nees_t_s = self._nees_t_s.copy()
+        out._nees_sum = list(self._nees_sum)
+        out._nees_n = list(self._nees_n)
+        out._nees_t_s = list(self._nees_t_s)
         out._ho_sum = list(self._ho_sum)
         out._ho_n = list(self._ho_n)
         out._ho_t_s = list(self._ho_t_s)
@@ -519,10 +521,7 @@ class DragModel:
     def nees_held_out(self) -> FloatArray:
         """The held-out-in-time validation's mean normalised squared error per NED axis
         (NaN before any)."""
-        n = np.asarray(self._ho_n)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out: FloatArray = np.where(n > 0.0, np.asarray(self._ho_sum) / n, np.nan)
-        return out
+        return _mean_z2(self._ho_sum, self._ho_n)
 
     def _lists(self) -> tuple[list[list[float]], list[list[list[float]]]]:
         """(θ, P) per row as lists, cached until the next learnt sample."""
@@ -553,9 +552,7 @@ class DragModel:
     @property
     def nees(self) -> FloatArray:
         """Validation's mean normalised squared error per NED axis (NaN before any)."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out: FloatArray = np.where(self._nees_n > 0.0, self._nees_sum / self._nees_n, np.nan)
-        return out
+        return _mean_z2(self._nees_sum, self._nees_n)
 
     # ------------------------------------------------------------------ state
     @property
@@ -769,10 +766,10 @@ class DragModel:
         if validated:
             if lost_axis not in cfg.aided_axes:
                 return None
-            n = float(self._nees_n[lost_axis])
+            n = self._nees_n[lost_axis]
             if n < cfg.nees_n_min:
                 return None
-            nees = float(self._nees_sum[lost_axis]) / n
+            nees = self._nees_sum[lost_axis] / n
             if self._ho_n[lost_axis] >= cfg.nees_n_min:
                 # held out in time (``holdout_s``): the larger of the two decides
                 nees = max(nees, self._ho_sum[lost_axis] / self._ho_n[lost_axis])
