@@ -337,6 +337,9 @@ def _row(  # noqa: PLR0917 -- one table row's cells, in column order
         "dropped_pct": 100.0 * max(0, sent - frames_ok) / max(1, sent),
         "p50_ms": lat["p50_ms"],
         "p99_ms": lat["p99_ms"],
+        # the median over blocks of 1,000 datagrams of their p99 (fleet.latency.BLOCK): the
+        # p99 with one stall of the shared machine left out
+        "p99_block_ms": lat["p99_block_median_ms"],
         "max_ms": lat["max_ms"],
         "generator_core_pct": gen["gen_core_pct"],
         "load1": os.getloadavg()[0],
@@ -430,6 +433,16 @@ def run(
         )
         for m in {r["mode"] for r in rows}
     }  # fmt: skip
+    # the same with the blocks' median p99: the count a single 50-100 ms stall of the shared
+    # machine does not set (at 2-20 vehicles a run's p99 is that of a few hundred datagrams)
+    best_blocks = {
+        m: max(
+            (r["vehicles"] for r in rows
+             if r["mode"] == m and r["dropped_pct"] < 0.1 and r["p99_block_ms"] <= 5.0),
+            default=0,
+        )
+        for m in {r["mode"] for r in rows}
+    }  # fmt: skip
     no_drops = _no_drop_counts(rows)
     sharded = f"{workers} workers"
     sharded_out = f"{workers} workers, {OUTPUTS}"
@@ -453,6 +466,15 @@ def run(
             goal(
                 f"vehicles held by {sharded}, {what} (< 0.1 % dropped, p99 ≤ 5 ms)",
                 float(best[held_mode]),
+                float(GOAL_VEHICLES),
+                higher_is_better=True,
+            )
+        )
+        goals.append(
+            goal(
+                f"vehicles held by {sharded}, {what}, median of 1,000-datagram blocks' p99 "
+                "≤ 5 ms (< 0.1 % dropped)",
+                float(best_blocks[held_mode]),
                 float(GOAL_VEHICLES),
                 higher_is_better=True,
             )
@@ -540,6 +562,7 @@ def run(
         "vehicles_selected": list(vehicles) if vehicles else None,
         "rows": rows,
         "vehicles_held": best,
+        "vehicles_held_blocks": best_blocks,
         "vehicles_without_drops": no_drops,
         "decoded_per_s_max": throughput,
         "goals": goals,
@@ -549,7 +572,8 @@ def run(
 def to_markdown(result: dict[str, Any]) -> str:
     r = result
     m = r.get("machine") or machine()
-    cols = ("mode", "routing", "vehicles", "sent_per_s", "dropped_pct", "p50_ms", "p99_ms", "max_ms",
+    cols = ("mode", "routing", "vehicles", "sent_per_s", "dropped_pct", "p50_ms", "p99_ms",
+            "p99_block_ms", "max_ms",
             "worker_us_per_datagram", "generator_core_pct", "load1")  # fmt: skip
     per_vehicle = r["datagrams_per_vehicle_s"]
     table = [
@@ -595,6 +619,9 @@ def to_markdown(result: dict[str, Any]) -> str:
         "",
         "Vehicles held (< 0.1 % dropped and p99 ≤ 5 ms): "
         + ", ".join(f"{k}: {v}" for k, v in sorted(r["vehicles_held"].items()))
+        + ". With the median of the 1,000-datagram blocks' p99 instead (`p99_block_ms`: "
+        "one stall of the machine spoils only the blocks it falls in): "
+        + ", ".join(f"{k}: {v}" for k, v in sorted(r.get("vehicles_held_blocks", {}).items()))
         + ". Vehicles decoded without drops (< 0.1 %, any latency: the throughput's "
         "view, less at the mercy of the machine's load than p99): "
         + ", ".join(f"{k}: {v}" for k, v in sorted(_no_drop_counts(r["rows"]).items()))
