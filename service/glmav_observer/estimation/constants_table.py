@@ -99,6 +99,11 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                                  "equations.md eqs. 7-8 linearised in the downwash"),
         "aero_prior_k_sigma_per_s": _r("1/s", "physics", "its σ: the vehicle file's "
                                        "parameters' uncertainty (~7 % of k)"),
+        "aero_symmetric_xy": _r("", "physics", "one drag along body x and y (rotors "
+                                "symmetric about z: quad, hexa, octa; ArduPilot's SIM_Frame "
+                                "has one coefficient for both): a row whose speed barely "
+                                "varied borrows the other row's k, q "
+                                "(estimation/aero/symmetry.py)"),
     },
     "DragModelConfig": {
         "tau_s": _r("s", "physics", "forgetting time constant: slow against gusts, fast "

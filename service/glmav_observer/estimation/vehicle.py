@@ -145,7 +145,23 @@ class EstimatorConfig:
     #: from the vehicle file: 0.437 for glmav-sitl's default vehicle), and its σ; 0: off
     aero_prior_k_per_s: float = 0.0
     aero_prior_k_sigma_per_s: float = 0.03
+    #: the vehicle's drag is the same along body x and y (a quad, hexa or octa):
+    #: ``DragModelConfig.symmetric_xy``, a body row whose speed barely varied borrows the
+    #: other row's k and q
+    aero_symmetric_xy: bool = False
     fdi: FdiConfig = field(default_factory=FdiConfig)
+
+
+def _drag_model_config(config: EstimatorConfig) -> DragModelConfig | None:
+    """The drag model's settings from ``[estimation]`` (None: the defaults)."""
+    if config.aero_prior_k_per_s <= 0.0 and not config.aero_symmetric_xy:
+        return None
+    prior_k = (
+        (config.aero_prior_k_per_s, config.aero_prior_k_sigma_per_s)
+        if config.aero_prior_k_per_s > 0.0
+        else None
+    )
+    return DragModelConfig(prior_k=prior_k, symmetric_xy=config.aero_symmetric_xy)
 
 
 class VehicleEstimator:
@@ -176,11 +192,7 @@ class VehicleEstimator:
         self.aiding = (
             LostAxisAiding(
                 config.fdi.sigma_handover_mps,
-                model_config=DragModelConfig(
-                    prior_k=(config.aero_prior_k_per_s, config.aero_prior_k_sigma_per_s)
-                )
-                if config.aero_prior_k_per_s > 0.0
-                else None,
+                model_config=_drag_model_config(config),
                 control=config.aero_control,
             )
             if config.aero_aiding

@@ -106,6 +106,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glmav_observer.estimation.aero.rows import RowFits
+from glmav_observer.estimation.aero.symmetry import share_drag, shared_drag_chi2
 
 FloatArray = NDArray[np.float64]
 
@@ -226,6 +227,30 @@ class DragModelConfig:
             "reason": "a negative fitted q leaves no root: use the linear part",
         },
     )
+    #: the vehicle's drag is the same along body x and y (a quad, hexa or octa: rotors
+    #: symmetric about z; ArduPilot's frame model has one drag for both): a row whose own
+    #: speed barely varied (spread test) is updated with the (k, q) of the other row, whose
+    #: speed did (:mod:`.symmetry`, (S1)); a row whose data identify its k keeps its own.
+    #: A user's statement about the airframe, not learnt; off: the model bit for bit as
+    #: before
+    symmetric_xy: bool = field(
+        default=False,
+        metadata={
+            "unit": "bool",
+            "source": "physics: a symmetric rotor layout has one drag in x and y",
+            "reason": "a hovering row's k from the other row's data (S1)",
+        },
+    )
+    #: (S2): a row borrows the other's (k, q) only while their difference's χ² is below
+    #: this (2 degrees of freedom: 11.8 is the 99.73 % point, one dimension's 3σ)
+    symmetric_gate_chi2: float = field(
+        default=11.8,
+        metadata={
+            "unit": "χ² (2 dof)",
+            "source": "statistic: −2 ln(0.0027), the 3σ level in two dimensions",
+            "reason": "two rows that each know their drag and disagree keep their own",
+        },
+    )
     holdout_s: float = field(
         default=10.0,
         metadata={
@@ -242,6 +267,15 @@ class DragModelConfig:
             "reason": "validate the noisy pseudo-measurements that the aiding averages",
         },
     )
+
+
+class _Used(NamedTuple):
+    """θ (rows of floats) and P per body row as the model is used, and whether the rows'
+    (k, q) are shared (``symmetric_xy``, (S1))."""
+
+    theta: list[list[float]]
+    cov: list[list[list[float]]]
+    shared: bool
 
 
 class PseudoMeasurement(NamedTuple):
@@ -295,6 +329,9 @@ class DragModel:
         #: (:attr:`_theta`, :attr:`_P`)
         self._rows = RowFits(n, [th0, th0], np.linalg.inv(self._lam0).tolist())
         self._list_cache: tuple[list[list[float]], list[list[list[float]]]] | None = None
+        #: (``symmetric_xy``) the lists the shared (k, q) were computed from, and θ, P
+        #: after (S1) and whether it applied (:meth:`_use_lists`)
+        self._use_cache: tuple[object, _Used] | None = None
         self._np_cache: tuple[FloatArray, FloatArray] | None = None
         #: Σ (1 − λ) since the prior was last put back (module docstring)
         self._prior_due = 0.0
@@ -515,6 +552,7 @@ class DragModel:
         out._list_cache = None
         out._np_cache = None
         out._trust_cache = None
+        out._use_cache = None
         return out
 
     @property
@@ -528,6 +566,33 @@ class DragModel:
         if self._list_cache is None:
             self._list_cache = (self._rows.theta(), self._rows.cov())
         return self._list_cache
+
+    def _use_lists(self) -> _Used:
+        """(θ, P, shared) per row as the model is *used* (its tests and pseudo-measurement):
+        with ``symmetric_xy``, a row whose body speed barely varied (below the spread
+        test) updated by (S1) with the (k, q) of the other row, whose speed did, when the
+        rows pass (S2) (:mod:`.symmetry`); else the fit's own (θ, P, False). The learning
+        never sees these (it keeps each row's own fit). Cached until the next learnt
+        sample."""
+        lists = self._lists()
+        if not self.config.symmetric_xy:
+            return _Used(lists[0], lists[1], False)
+        if self._use_cache is not None and self._use_cache[0] is lists:
+            return self._use_cache[1]
+        th, P = self._arrays()
+        idx = (_K, _Q)
+        used = _Used(lists[0], lists[1], False)
+        if shared_drag_chi2(th, P, idx) <= self.config.symmetric_gate_chi2:
+            # only a row whose own speeds did not vary borrows, and only from a row whose
+            # did: a row whose data identify its k keeps its own fit (the symmetry is the
+            # user's statement; it is used only where the row's own data are silent)
+            spread_ok = self.speed_spread_mps >= self.config.speed_spread_min_mps
+            if spread_ok[0] != spread_ok[1]:
+                j = 0 if spread_ok[1] else 1
+                th_s, P_s = share_drag(th, P, idx, rows=(j,))
+                used = _Used(th_s.tolist(), P_s.tolist(), True)
+        self._use_cache = (lists, used)
+        return used
 
     def _arrays(self) -> tuple[FloatArray, FloatArray]:
         if self._np_cache is None:
@@ -650,10 +715,14 @@ class DragModel:
             failed: list[str] = []
             rows = self._rows
             s_sum, s2_sum, res_sum = rows.s_sum, rows.s2_sum, rows.res_sum
-            th, P = self._lists()
+            th, P, shared = self._use_lists()
+            spread2_rows = [s2_sum[i] / n - (s_sum[i] / n) ** 2 for i in range(2)]
             for j in range(2):
-                m = s_sum[j] / n
-                spread2 = s2_sum[j] / n - m * m
+                spread2 = spread2_rows[j]
+                if shared and spread2_rows[1 - j] >= cfg.speed_spread_min_mps**2:
+                    # (S1): this row's k is the other row's, identified from that row's
+                    # spread of speeds; the k test below still applies to the borrowed k
+                    spread2 = spread2_rows[1 - j]
                 var_f = max(res_sum[j] / n, floor2)
                 k = th[j][_K]
                 var_k = P[j][_K][_K]
@@ -687,8 +756,9 @@ class DragModel:
             )
         spread = self.speed_spread_mps
         sig_f = self.sigma_f_mps2
-        k = self._theta[:, _K]
-        z = k / np.sqrt(self._P[:, _K, _K])
+        th, P, _ = self._use_lists()  # the k the test judged (shared with symmetric_xy)
+        k = np.array([th[0][_K], th[1][_K]])
+        z = k / np.sqrt([P[0][_K][_K], P[1][_K][_K]])
         why: list[str] = []
         for j, name in enumerate("xy"):
             if failed[j] == "spread":
@@ -778,7 +848,7 @@ class DragModel:
             scale = math.sqrt(max(1.0, nees))
         ok, _ = self._row_tests()
         sig_f = self._sigma_f_list()
-        th_rows = self._lists()[0]
+        th_rows, P_rows, shared = self._use_lists()
         known = [i for i in range(3) if i != lost_axis]
         parts: list[tuple[float, float, float]] = []
         for j in range(2):
@@ -811,7 +881,17 @@ class DragModel:
             phi: tuple[float, ...] = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
             if rho is not None:
                 phi = (*phi, rho[j])
-            var_model = self._rows.quad_form(j, phi) / g2  # φᵀ P_j φ
+            if shared:  # φᵀ P_j φ with P_j after (S1)
+                Pj = P_rows[j]
+                var_model = (
+                    sum(
+                        phi[a] * sum(Pj[a][b] * phi[b] for b in range(len(phi)))
+                        for a in range(len(phi))
+                    )
+                    / g2
+                )
+            else:
+                var_model = self._rows.quad_form(j, phi) / g2  # φᵀ P_j φ
             var_white = (
                 sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
             ) / g2
@@ -832,6 +912,14 @@ class DragModel:
         var = 1.0 / den
         v_lost = var * sum(v_j / var_j for v_j, var_j, _ in parts)
         var_model_comb = sum((var / var_j) ** 2 * var_m for _, var_j, var_m in parts)
+        if shared and len(parts) == 2:
+            # (S1): one row borrowed the other's (k, q), so their model parts are
+            # correlated: taken as fully correlated (an upper bound), (Σ w_j σ_m,j)² with
+            # w_j = var/var_j, beside the white parts' Σ w_j² (var_j − var_m,j)
+            var_model_comb = sum(var / var_j * math.sqrt(var_m) for _, var_j, var_m in parts) ** 2
+            var = var_model_comb + sum(
+                (var / var_j) ** 2 * (var_j - var_m) for _, var_j, var_m in parts
+            )
         sigma = scale * math.sqrt(var)
         if sigma > sigma_max_mps:
             return None
