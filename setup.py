@@ -18,6 +18,7 @@ from setuptools.command.build_ext import build_ext
 MODULES = [
     ("glmav_observer.rotation", "service/glmav_observer/rotation.pyx"),
     ("glmav_observer.ingest.fastframe", "service/glmav_observer/ingest/fastframe.pyx"),
+    ("glmav_observer.ingest.udp_drain", "service/glmav_observer/ingest/udp_drain.pyx"),
     ("glmav_observer.estimation.inputs", "service/glmav_observer/estimation/inputs.pyx"),
     ("glmav_observer.estimation.despike", "service/glmav_observer/estimation/despike.pyx"),
     ("glmav_observer.estimation.bank_core", "service/glmav_observer/estimation/bank_core.pyx"),
