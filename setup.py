@@ -28,6 +28,7 @@ MODULES = [
     ("glmav_sitl.dynamics.rhs", "sim_bridge/glmav_sitl/dynamics/rhs.pyx"),
     ("glmav_sitl.control.controller", "sim_bridge/glmav_sitl/control/controller.pyx"),
     ("glmav_sitl.mavlink.frame", "sim_bridge/glmav_sitl/mavlink/frame.pyx"),
+    ("glmav_sitl.fleet_send", "sim_bridge/glmav_sitl/fleet_send.pyx"),
     ("glmav_sitl.sensors.models", "sim_bridge/glmav_sitl/sensors/models.pyx"),
 ]
 
