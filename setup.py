@@ -18,6 +18,7 @@ from setuptools.command.build_ext import build_ext
 MODULES = [
     ("glmav_observer.rotation", "service/glmav_observer/rotation.pyx"),
     ("glmav_observer.ingest.fastframe", "service/glmav_observer/ingest/fastframe.pyx"),
+    ("glmav_observer.ingest.udp_drain", "service/glmav_observer/ingest/udp_drain.pyx"),
     ("glmav_observer.estimation.inputs", "service/glmav_observer/estimation/inputs.pyx"),
     ("glmav_observer.estimation.despike", "service/glmav_observer/estimation/despike.pyx"),
     ("glmav_observer.estimation.bank_core", "service/glmav_observer/estimation/bank_core.pyx"),
@@ -27,6 +28,7 @@ MODULES = [
     ("glmav_sitl.dynamics.rhs", "sim_bridge/glmav_sitl/dynamics/rhs.pyx"),
     ("glmav_sitl.control.controller", "sim_bridge/glmav_sitl/control/controller.pyx"),
     ("glmav_sitl.mavlink.frame", "sim_bridge/glmav_sitl/mavlink/frame.pyx"),
+    ("glmav_sitl.fleet_send", "sim_bridge/glmav_sitl/fleet_send.pyx"),
     ("glmav_sitl.sensors.models", "sim_bridge/glmav_sitl/sensors/models.pyx"),
 ]
 

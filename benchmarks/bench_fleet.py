@@ -65,7 +65,7 @@ from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig, load_config
 from glmav_observer.fleet.latency import LatencyHistogram
 from glmav_observer.fleet.workers import ShardedServer, worker_specs
-from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, Link
+from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, UDP_DRAIN_BATCH, Link
 from glmav_testkit.fleet_helpers import udp_queue
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -229,8 +229,9 @@ def _point_single_with(
 
 def _point_read_only(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
     """The floor of any service in this process model: a thread that only waits on the
-    port (``select``) and reads its datagrams with their kernel stamps (``Link.read``, as
-    ``Service.run`` does), and does nothing with them."""
+    port (``select``) and reads its datagrams with their kernel stamps
+    (``Link.read_datagrams``: ``UDP_DRAIN_BATCH`` a system call, as ``Service.run`` does),
+    and does nothing with them."""
     port = _free_udp_port()
     cfg = _config(n)
     link = Link(f"udpin:127.0.0.1:{port}", udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes)
@@ -241,9 +242,13 @@ def _point_read_only(tlog: Path, n: int, seconds: float) -> dict[str, Any]:
         fd, clock = link.fileno(), time.monotonic
         while not stop.is_set():
             ready, _, _ = select.select([fd], [], [], 0.05)
-            while ready and link.read():
-                hist.add(clock() - link.arrival_s)
-                read[0] += 1
+            while ready:
+                got = link.read_datagrams(UDP_DRAIN_BATCH)
+                for _data, arrival_s, _peer in got:
+                    hist.add(clock() - arrival_s)
+                read[0] += len(got)
+                if len(got) < UDP_DRAIN_BATCH:
+                    break
 
     cpu0 = time.process_time()
     gen, drops = _with_traffic(tlog, port, n, seconds, serve=loop, close=link.close)

@@ -24,6 +24,7 @@ import logging
 import math
 import select
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -40,7 +41,12 @@ from glmav_observer.ingest.framing import (
     new_dialect,
 )
 from glmav_observer.ingest.link_budget import LinkCapacity, fit_rates
-from glmav_observer.ingest.links import KERNEL_DROPS_COUNTER, KernelDrops, Link
+from glmav_observer.ingest.links import (
+    KERNEL_DROPS_COUNTER,
+    UDP_DRAIN_BATCH,
+    KernelDrops,
+    Link,
+)
 from glmav_observer.ingest.pipeline import (
     Admission,
     Ingest,
@@ -503,6 +509,9 @@ class Service:
                 lid, lk = by_fd[fd]
                 # drain the socket, but at most DRAIN_MAX_READS reads a turn and never past
                 # a stop request: a flood must not delay shutdown or the rate checks
+                if lk.datagram:
+                    self._drain_datagrams(lid, lk, stop_event, clock)
+                    continue
                 for _ in range(DRAIN_MAX_READS):
                     if stop_event.is_set():
                         break
@@ -529,12 +538,44 @@ class Service:
         self.restore_rates(links, clock)
         self.kernel_drops.check(links)
 
+    def _drain_datagrams(
+        self,
+        lid: str,
+        lk: Link,
+        stop_event: threading.Event | None,
+        clock: Callable[[], float],
+        *,
+        max_reads: int = DRAIN_MAX_READS,
+        deadline: float = math.inf,
+    ) -> None:
+        """Read and feed up to ``max_reads`` datagrams of a UDP link, ``UDP_DRAIN_BATCH``
+        a system call; between two batches, stop at a stop request or past ``deadline``
+        (``time.monotonic``). A batch read is fed whole: nothing read is lost."""
+        left = max_reads
+        while left > 0 and not (stop_event is not None and stop_event.is_set()):
+            if deadline < math.inf and time.monotonic() >= deadline:
+                break
+            want = min(left, UDP_DRAIN_BATCH)
+            got = lk.read_datagrams(want)
+            for data, _arrival_s, peer in got:
+                if data:
+                    self.current_peer = peer
+                    self.feed_bytes(lid, data, clock(), datagram=True)
+            left -= len(got)
+            if len(got) < want:
+                break  # the socket is empty
+
     def _final_drain(self, links: dict[str, Link], clock: Callable[[], float]) -> None:
         """At stop: what is already queued on the links is still read, for at most
         ``STOP_DRAIN_S`` (a flood cannot hold the stop back longer)."""
         deadline = time.monotonic() + STOP_DRAIN_S
         for lid, lk in links.items():
             if lk.fileno() is None:
+                continue
+            if lk.datagram:
+                self._drain_datagrams(
+                    lid, lk, None, clock, max_reads=sys.maxsize, deadline=deadline
+                )
                 continue
             while time.monotonic() < deadline:
                 data = lk.read()

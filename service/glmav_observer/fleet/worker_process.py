@@ -229,21 +229,20 @@ class _WorkerLoop:
         service, clock = self.service, time.monotonic
         n_workers, me = self.spec.workers, self.spec.index
         foreign = []
-        n = 0
-        while n < max_reads:
-            data = lk.read()
+        # up to max_reads datagrams, UDP_DRAIN_BATCH a system call (ingest/udp_drain.pyx)
+        got = lk.read_datagrams(max_reads)
+        for data, arrival_s, peer in got:
             if not data:
-                break
-            n += 1
+                continue
             t = clock()
             sysid = datagram_sysid(data)
             if (0 if sysid is None else worker_of_sysid(sysid, n_workers)) != me:
-                foreign.append((lid, t, data, lk.peer))
+                foreign.append((lid, t, data, peer))
                 continue
-            service.current_peer = lk.peer
+            service.current_peer = peer
             service.feed_bytes(lid, data, t, datagram=True)
             # from the kernel's receive stamp: the wait in the socket's queue counts
-            self.latency.add(clock() - lk.arrival_s)
+            self.latency.add(clock() - arrival_s)
             self.items += 1
         if foreign:
             if at_stop:  # the parent no longer routes: counted, not lost silently
@@ -252,7 +251,7 @@ class _WorkerLoop:
                 with contextlib.suppress(BrokenPipeError, OSError):
                     self.outbox.send(("route", foreign))
                 service.counters["datagrams_rerouted"] += len(foreign)
-        return n
+        return len(got)
 
     def _answer(self) -> None:
         """Send what the service queued (rate requests): on our own socket for a

@@ -92,6 +92,7 @@ from glmav_observer.fleet.worker_process import (
 from glmav_observer.ingest.links import (
     DEFAULT_UDP_RECEIVE_BUFFER_BYTES,
     KERNEL_DROPS_COUNTER,
+    UDP_DRAIN_BATCH,
     KernelDrops,
     Link,
 )
@@ -308,21 +309,25 @@ class ShardedServer:
                     self._from_worker(by_result[fd], links)
                     continue
                 lid, lk = by_fd[fd]
-                while True:  # drain the socket
-                    data = lk.read()
-                    if not data:
-                        break
+                if lk.datagram:  # drain the socket, UDP_DRAIN_BATCH a system call
+                    while True:
+                        got = lk.read_datagrams(UDP_DRAIN_BATCH)
+                        for data, arrival_s, peer in got:
+                            if data:
+                                # its arrival: the kernel's stamp (the wait in the queue
+                                # counts)
+                                self.route_datagram(lid, data, min(clock(), arrival_s), peer)
+                        if len(got) < UDP_DRAIN_BATCH:
+                            break
+                    continue
+                data = lk.read()  # a stream: what it holds now
+                if data:
                     t = clock()
-                    if lk.datagram:
-                        # its arrival: the kernel's stamp (the wait in the queue counts)
-                        self.route_datagram(lid, data, min(t, lk.arrival_s), lk.peer)
-                        continue
                     sp = splitters.get(lid)
                     if sp is None:
                         sp = splitters[lid] = StreamSplitter()
                     for sysid, piece in sp.feed(data):
                         self._queue(self.worker_of(sysid), (lid, t, piece, None))
-                    break
             now = clock()
             for w in self.workers:
                 if w.batch and now - min(w.batch[0][1], w.flushed_s) >= FLUSH_AFTER_S:

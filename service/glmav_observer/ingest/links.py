@@ -28,6 +28,8 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
+from glmav_observer.ingest import udp_drain
+
 logger = logging.getLogger(__name__)
 
 _UDP_MAX = 65535
@@ -138,6 +140,9 @@ def _arrival_s(ancillary: list[tuple[int, int, bytes]]) -> float:
     return now
 
 
+#: datagrams read by one ``recvmmsg`` call of :meth:`Link.read_datagrams`
+UDP_DRAIN_BATCH = 64
+
 #: SO_RCVBUF asked for on UDP links (the OS may cap it: net.core.rmem_max).
 DEFAULT_UDP_RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
 
@@ -187,6 +192,15 @@ class Link:
                         )
                     except OSError as err:  # a limit of the OS: keep the default buffer
                         logger.warning("SO_RCVBUF not set", extra={"link": conn, "error": str(err)})
+        #: the UDP socket's drain (recvmmsg), where the OS has one
+        self._drain: udp_drain.UdpDrain | None = None
+        if (
+            udp_drain.AVAILABLE
+            and self.datagram
+            and self._sock is not None
+            and self._sock.family == socket.AF_INET
+        ):
+            self._drain = udp_drain.UdpDrain(self._sock.fileno(), UDP_DRAIN_BATCH, self._stamps)
         #: link events (``tcp_disconnects``, ``tcp_reconnects``)
         self.counters: collections.Counter[str] = collections.Counter()
         #: a TCP client link (``tcp:HOST:PORT``) reconnects on EOF or error, with backoff
@@ -300,6 +314,33 @@ class Link:
         self.arrival_s = time.monotonic()
         return bytes(data) if data else b""
 
+    def read_datagrams(self, max_n: int) -> list[tuple[bytes, float, Any]]:
+        """Up to ``max_n`` datagrams waiting on a UDP link, in order: (bytes, arrival on
+        ``time.monotonic``'s clock, sender) each, as :meth:`read` gives them one at a time
+        (the same peers and arrival times; ``peer`` and ``arrival_s`` are left at the last
+        datagram's). Fewer than ``max_n``: the socket is empty. An empty datagram is in
+        the list as ``b""``. One ``recvmmsg`` system call reads ``UDP_DRAIN_BATCH`` of
+        them (:mod:`glmav_observer.ingest.udp_drain`); elsewhere, one :meth:`read` each."""
+        if self._drain is None:
+            out: list[tuple[bytes, float, Any]] = []
+            while len(out) < max_n:
+                data = self.read()
+                if not data:
+                    break
+                out.append((data, self.arrival_s, self.peer))
+            return out
+        try:
+            got = self._drain.drain(max_n)
+        except OSError:
+            if self._closed:
+                return []  # closed by another thread while reading: nothing more comes
+            raise
+        if got:
+            _, self.arrival_s, self.peer = got[-1]
+            if self._m is not None and getattr(self._m, "udp_server", False):
+                self._m.last_address = self.peer  # replies go to the sender
+        return got
+
     def write(self, data: bytes, peer: Any = None) -> bool:
         """Send ``data``; on a UDP server link to ``peer`` (a vehicle's address) if given.
         False if nothing was sent: the link is down (TCP), has no peer yet, or failed."""
@@ -342,6 +383,7 @@ class Link:
 
     def close(self) -> None:
         self._closed = True
+        self._drain = None  # it holds the descriptor's number, which the OS will reuse
         if self._sock is not None:
             self._sock.close()
         if self._m is not None:
