@@ -201,7 +201,9 @@ def _point_single_with(
 
     def feed_bytes(link_id: str, data: bytes, t: float, *, datagram: bool = True) -> int:
         k = orig(link_id, data, t, datagram=datagram)
-        hist.add(clock() - link.arrival_s)  # from the kernel's receive stamp
+        # from the kernel's receive stamp of this datagram (a drained batch's own, not the
+        # link's last: Service.current_arrival_s)
+        hist.add(clock() - svc.current_arrival_s)
         return k
 
     svc.feed_bytes = feed_bytes  # type: ignore[method-assign]

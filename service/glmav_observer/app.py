@@ -121,6 +121,9 @@ class Service:
         self._conflict_seq: dict[int, int] = {}
         #: the sender address of the datagram being processed (set by the live loop)
         self.current_peer: Any = None
+        #: ... and its arrival (time.monotonic's clock; the kernel's receive stamp where the
+        #: link has one: ``Link.arrival_s``), for a caller measuring latency
+        self.current_arrival_s: float = math.nan
         #: MAVLink 2 signing freshness, shared by every link, persisted if configured
         self.signing: SigningState | None = None
         if config.signing_key is not None:
@@ -519,6 +522,7 @@ class Service:
                     if not data:
                         break
                     self.current_peer = lk.peer
+                    self.current_arrival_s = lk.arrival_s
                     self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
                     if not lk.datagram:
                         break
@@ -557,9 +561,10 @@ class Service:
                 break
             want = min(left, UDP_DRAIN_BATCH)
             got = lk.read_datagrams(want)
-            for data, _arrival_s, peer in got:
+            for data, arrival_s, peer in got:
                 if data:
                     self.current_peer = peer
+                    self.current_arrival_s = arrival_s
                     self.feed_bytes(lid, data, clock(), datagram=True)
             left -= len(got)
             if len(got) < want:

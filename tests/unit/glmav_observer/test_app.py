@@ -3,11 +3,17 @@ vehicle whose rates a ground station set, and one that stays short; summary."""
 
 from __future__ import annotations
 
+import itertools
+import socket
+import threading
+import time
+
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from glmav_observer.app import Service
 from glmav_observer.config import parse_config
 from glmav_observer.ingest.framing import FrameDecoder
+from glmav_observer.ingest.links import Link
 
 _MAV = dialect.MAVLink(None, srcSystem=3, srcComponent=1)
 
@@ -206,3 +212,45 @@ def test_superseded_imu_frames_and_bad_frames_are_counted_by_reason() -> None:
     # the zero RAW_IMU frames arrive while HIGHRES_IMU streams: superseded, not converted
     assert counters["rx_SCALED_IMU"] > 0 and counters["rx_RAW_IMU"] > 0
     assert summary.records == len(recs) > 0
+
+
+def test_the_live_loop_gives_each_drained_datagram_its_own_arrival() -> None:
+    """Service.run drains a UDP link many datagrams a system call (recvmmsg); the
+    arrival it exposes while feeding each one (``current_arrival_s``, what bench_fleet's
+    latency reads) is that datagram's own kernel stamp, not the batch's last."""
+    svc = Service(parse_config({"rates": {"mode": "observe"}}), [])
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a free port
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    link = Link(f"udpin:127.0.0.1:{port}")
+    seen: list[float] = []
+    orig = svc.feed_bytes
+
+    def feed(link_id: str, data: bytes, t: float, *, datagram: bool = True) -> int:
+        seen.append(svc.current_arrival_s)
+        return orig(link_id, data, t, datagram=datagram)
+
+    svc.feed_bytes = feed  # type: ignore[method-assign]
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    frames = [_MAV.heartbeat_encode(2, 3, 0, 0, 4).pack(_MAV) for _ in range(3)]
+    stamps = []
+    for f in frames:  # sent 20 ms apart, queued before the loop reads: one drain reads all
+        stamps.append(time.monotonic())
+        tx.sendto(f, ("127.0.0.1", port))
+        time.sleep(0.02)
+    stop = threading.Event()
+    th = threading.Thread(target=svc.run, args=({"udp": link}, stop))
+    th.start()
+    deadline = time.monotonic() + 10.0
+    while len(seen) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    stop.set()
+    th.join(10.0)
+    link.close()
+    tx.close()
+    assert len(seen) == 3
+    # each one its own: 20 ms apart as sent (the loop read them together, later); the
+    # sleeps are at least 20 ms, and a stamp is the kernel's, taken after the send began
+    gaps = [b - a for a, b in itertools.pairwise(seen)]
+    assert all(g >= 0.019 for g in gaps), gaps
+    assert all(s >= t0 for s, t0 in zip(seen, stamps, strict=True))
