@@ -40,6 +40,7 @@ from glmav_observer.estimation.observer import (
     FloatArray,
     NonFiniteInputError,
     e_matrix,
+    frame_ramp_down_mps2,
     gamma_body_mps2,
     phi_terms,
     zoh_earth,
@@ -108,6 +109,7 @@ class ObserverBank:
         gamma_per_config: Mapping[str, float] | None = None,
         e_form: EForm = "exact",
         g_mps2: float = G_MPS2,
+        rotate_measurement_down: bool = False,
     ) -> None:
         if e_form not in ("exact", "small_angle"):
             raise ValueError(f"e_form must be 'exact' or 'small_angle', got {e_form!r}")
@@ -115,7 +117,12 @@ class ObserverBank:
         self.g_mps2 = float(g_mps2)
         self.gamma_gain: tuple[float, ...] = _gammas(gamma_per_config)
         self._gamma_arr = np.array(self.gamma_gain)
-        self._core = BankCore(self.gamma_gain, self.g_mps2, _STANDARD_LOST)
+        #: `full`'s down measurement compared in the step's frame
+        #: (observer.frame_ramp_down_mps2; EstimatorConfig.rotate_measurement_down)
+        self.rotate_measurement_down = bool(rotate_measurement_down)
+        self._core = BankCore(
+            self.gamma_gain, self.g_mps2, _STANDARD_LOST, self.rotate_measurement_down
+        )
         #: the masks of the last step (None: the last step was :meth:`advance`'s, whose
         #: masks the core's lost axes tell)
         self._masks_last: list[tuple[bool, bool, bool]] | None = _STANDARD_MASKS
@@ -321,9 +328,15 @@ class ObserverBank:
         form (:func:`~glmav_observer.estimation.observer.zoh_step`)."""
         E = e_matrix(np.array(eul), self.e_form)
         Gam = gamma_body_mps2(np.array(f), np.array(eul), self.g_mps2)
+        rate: FloatArray | Sequence[float] | None = y_rate
+        if self.rotate_measurement_down and all(masks[0]):  # `full` measures every axis
+            # as BankCore.step_c: its ramp takes the frame term (frame_ramp_down_mps2)
+            rates = np.zeros((4, 3)) if y_rate is None else np.tile(np.asarray(y_rate), (4, 1))
+            rates[0] += frame_ramp_down_mps2(E @ np.asarray(w, dtype=np.float64), np.array(y))
+            rate = rates
         x_new = zoh_step(
             np.array(self._core.rows()), np.array(w), Gam, E, np.array(y), np.array(masks),
-            self._gamma_arr, h, orthogonal_e=self.e_form == "exact", y_rate_ned_mps2=y_rate,
+            self._gamma_arr, h, orthogonal_e=self.e_form == "exact", y_rate_ned_mps2=rate,
         )  # fmt: skip
         self._core.set_rows(x_new.tolist())
         self._core.set_e_list(E.ravel().tolist())

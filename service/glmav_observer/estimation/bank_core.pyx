@@ -63,10 +63,15 @@ cdef class BankCore:
     cdef int config_lost[4]
     # the lost axis each configuration had in the last fused step (advance)
     cdef int last_lost[4]
+    # `full`'s down measurement compared in the step's frame (EstimatorConfig.
+    # rotate_measurement_down): its ramp takes −(ω_e × y)_d
+    cdef public bint rotate_y_down
 
-    def __init__(self, gammas, double g_mps2, config_lost=(-1, 0, 1, 2)):
+    def __init__(self, gammas, double g_mps2, config_lost=(-1, 0, 1, 2),
+                 bint rotate_y_down=False):
         cdef int i, k
         self.g_mps2 = g_mps2
+        self.rotate_y_down = rotate_y_down
         for i in range(4):
             self.config_lost[i] = config_lost[i]
             self.last_lost[i] = config_lost[i]
@@ -282,6 +287,7 @@ cdef class BankCore:
         cdef double w0, w1, w2, y0, y1, y2
         cdef double r0 = 0.0, r1 = 0.0, r2 = 0.0
         cdef double c0, c1_, c2, rm1, rm2
+        cdef double q0, q1, q2
         cdef bint ramp = rho != NULL
         cdef int i, l_, m1, m2
         if ramp:
@@ -304,10 +310,15 @@ cdef class BankCore:
                 z[0] = e * z[0] + hp1 * (a[0] - (w1 * y2 - w2 * y1) + g * y0)
                 z[1] = e * z[1] + hp1 * (a[1] - (w2 * y0 - w0 * y2) + g * y1)
                 z[2] = e * z[2] + hp1 * (a[2] - (w0 * y1 - w1 * y0) + g * y2)
-                if ramp:  # + h² φ2 (γ ρ − ω_e × ρ)
-                    c0 = g * r0 - (w1 * r2 - w2 * r1)
-                    c1_ = g * r1 - (w2 * r0 - w0 * r2)
-                    c2 = g * r2 - (w0 * r1 - w1 * r0)
+                q0, q1, q2 = r0, r1, r2
+                if self.rotate_y_down:
+                    # the step's frame turns by ω_e τ from E's: the measurement seen from
+                    # it is exp(−[ω_e]× τ) y ≈ y − (ω_e × y) τ (observer.frame_ramp_down)
+                    q2 = q2 - (w0 * y1 - w1 * y0)
+                if ramp or self.rotate_y_down:  # + h² φ2 (γ ρ − ω_e × ρ)
+                    c0 = g * q0 - (w1 * q2 - w2 * q1)
+                    c1_ = g * q1 - (w2 * q0 - w0 * q2)
+                    c2 = g * q2 - (w0 * q1 - w1 * q0)
                     z[0] = z[0] + h2p2 * c0
                     z[1] = z[1] + h2p2 * c1_
                     z[2] = z[2] + h2p2 * c2
