@@ -29,6 +29,7 @@ MODULES: tuple[str, ...] = (
     "bench_sitl",
     "bench_daemon",
     "bench_fleet",
+    "bench_io",
     "bench_worker",
     "bench_replay",
     "bench_memory",
