@@ -2,10 +2,9 @@
 once its due time has come, with ``send(2)`` on each vehicle's connected UDP sockets.
 
 :func:`send_window` is the loop of :mod:`glmav_sitl.fleet` (one implementation, for
-every kind of link): per frame, in the window's order, it reads the clock only when the
-frame is not yet due by the last reading, sleeps through ``stop_wait`` (the stop event's
-``wait``, after ``flush``) when the frame is more than ``min_sleep_s`` away, sends the
-frame on each of its vehicle's descriptors, then calls its vehicle's Python ``emit`` (the
+every kind of link): per frame, in the window's order, it reads the clock, sleeps
+through ``stop_wait`` (the stop event's ``wait``, after ``flush``) when the frame is
+more than ``min_sleep_s`` away, sends the frame on each of its vehicle's descriptors, then calls its vehicle's Python ``emit`` (the
 stream links' part) if it has one. A send that fails is passed to ``failed(slot, error)``
 with the ``OSError`` Python's ``socket.send`` raises (ECONNREFUSED from an earlier
 datagram's ICMP, EAGAIN with the socket's buffer full, ...); ``EINTR`` is retried as
@@ -58,7 +57,7 @@ def send_window(
     ``owners``); frame i belongs to vehicle ``owners[i]``, whose descriptors are
     ``fds[fd_start[k]:fd_start[k + 1]]`` and whose ``emits[k]`` (``emits`` None, or the
     entry None: nothing) is called with the frame after them. Returns (frames sent, the
-    most any was late against the clock read last); stops early when ``stop_wait``
+    most any was sent after its due time, the clock read at each frame); stops early when ``stop_wait``
     returns true."""
     cdef Py_ssize_t n_frames = order.shape[0]
     cdef Py_ssize_t n = 0, j, i, k, slot
@@ -88,14 +87,15 @@ def send_window(
         if k < 0 or k >= fd_start.shape[0] - 1:
             raise IndexError(f"vehicle {k} not in the window")
         due = due_s[i]
+        # the clock at every frame (vDSO: tens of ns): a stall of the process while it
+        # sends a backlog is lateness too, which a clock read only at the sleeps misses
+        now = _now() - wall0
         if due > now:
+            flush()
+            if due - now > min_sleep_s and stop_wait(due - now):
+                break
             now = _now() - wall0
-            if due > now:
-                flush()
-                if due - now > min_sleep_s and stop_wait(due - now):
-                    break
-                now = _now() - wall0
-        elif now - due > late_max:
+        if now - due > late_max:
             late_max = now - due
         data = datas[i]
         buf = PyBytes_AS_STRING(data)
