@@ -6,7 +6,7 @@ Two costs of ``bench_fleet`` that are system calls more than Python (issue 30):
    datagrams/s each, 38,100/s) to a UDP port on 127.0.0.1 for ``seconds``: its own CPU
    time (the summary's ``generator CPU``) per datagram sent and as % of a core. With
    ``--before-tree`` (a checkout of the code before, e.g. ``git worktree add
-   /work/wt-before main``), the same run of that tree's ``glmav_sitl.fleet`` (its Python
+   ../before main`` from the repo), the same run of that tree's ``glmav_sitl.fleet`` (its Python
    send loop: a ``sock.send`` per frame) alternates with this tree's (``fleet_send.pyx``:
    ``send(2)`` on the descriptors in C), one repeat of each in turn;
 2. ``read``: one thread that waits on the port (``select``) and reads what the generator
@@ -18,7 +18,7 @@ Two costs of ``bench_fleet`` that are system calls more than Python (issue 30):
 Medians of the repeats. The machine is shared: the load average is recorded; the two
 sides of each comparison run back to back so that the load hits them alike.
 
-    python -m benchmarks.bench_io --before-tree /work/wt-before
+    python -m benchmarks.bench_io --before-tree ../before
     python -m benchmarks.bench_io --quick        # 5 s, 2 repeats, this tree only
 """
 
@@ -177,7 +177,8 @@ def run(
         "repeats": reps,
         "vehicles": VEHICLES,
         "offered_per_s": VEHICLES * DATAGRAMS_PER_VEHICLE_S,
-        "before_tree": before_tree,
+        # relative to this tree, so that the result names no path of the machine it ran on
+        "before_tree": None if before_tree is None else os.path.relpath(before_tree, ROOT),
         "loadavg_before": load_before,
         "loadavg_after": os.getloadavg(),
         "machine": machine(),
