@@ -75,46 +75,22 @@ def test_bank_equals_pure_function(e_form: str, mask_kind: str) -> None:
     np.testing.assert_allclose(bank.x_hat_ned_mps(), x @ E.T, atol=1e-12 * (1 + np.abs(x).max()))
 
 
-@pytest.mark.parametrize("e_form", ["exact", "small_angle"])
-def test_bank_ramp_equals_pure_function(e_form: str) -> None:
-    """With the measurement's ramp (y_rate_ned_mps2: the held y carried forward with the
-    IMU over the step) the bank's compiled step == zoh_step, per-configuration masks and NaN
-    axes included, 300 chained steps: the same closed form, other rounding: 1e-12."""
-    rng = np.random.default_rng(12)
+def _worst_against_zoh_step(
+    rng: np.random.Generator,
+    e_form: str,
+    *,
+    with_ramp: bool = True,
+    frame_down: bool = False,
+) -> float:
+    """300 chained steps of the bank (``step_floats``) and of the pure ``zoh_step`` from
+    the same random state and inputs (per-configuration masks, NaN axes), with the
+    measurement's ramp (``with_ramp``) and `full`'s down frame term (``frame_down``:
+    ``ObserverBank(rotate_measurement_down=True)`` against ``frame_ramp_down_mps2(E ω, y)``
+    added to `full`'s ramp when it measures every axis); the worst relative difference."""
     n = 300
     inp = _random_inputs(rng, n, np.pi if e_form == "exact" else 0.3)
     rates = rng.normal(scale=4.0, size=(n, 3))
-    bank = ObserverBank(e_form=e_form)  # type: ignore[arg-type]
-    x = rng.normal(size=(4, 3))
-    bank.reset(x)
-    worst = 0.0
-    for k in range(n):
-        allowed = inp["mask"][k]
-        y = inp["y"][k]
-        bank.step_floats(
-            float(inp["dt"][k]), inp["euler"][k].tolist(), inp["omega"][k].tolist(),
-            inp["f"][k].tolist(), y.tolist(), allowed, rates[k].tolist(),
-        )  # fmt: skip
-        masks = CONFIG_MASKS & allowed & np.isfinite(y)
-        E = e_matrix(inp["euler"][k], e_form)  # type: ignore[arg-type]
-        G = gamma_body_mps2(inp["f"][k], inp["euler"][k])
-        x = zoh_step(x, inp["omega"][k], G, E, y, masks, GAMMAS, inp["dt"][k],
-                     orthogonal_e=e_form == "exact", y_rate_ned_mps2=rates[k])  # fmt: skip
-        worst = max(worst, float(np.abs(bank.x_hat_body_mps - x).max() / (1 + np.abs(x).max())))
-    assert worst <= 1e-12
-
-
-@pytest.mark.parametrize("with_ramp", [True, False])
-def test_bank_frame_ramp_down_equals_pure_function(with_ramp: bool) -> None:
-    """rotate_measurement_down: the compiled step == zoh_step whose `full` ramp takes
-    frame_ramp_down_mps2(E ω, y) when `full` measures every axis (the other
-    configurations' ramps unchanged), per-configuration masks and NaN axes included (the
-    numpy path then), 300 chained steps: the same closed form, other rounding: 1e-12."""
-    rng = np.random.default_rng(29)
-    n = 300
-    inp = _random_inputs(rng, n)
-    rates = rng.normal(scale=4.0, size=(n, 3))
-    bank = ObserverBank(rotate_measurement_down=True)
+    bank = ObserverBank(e_form=e_form, rotate_measurement_down=frame_down)  # type: ignore[arg-type]
     x = rng.normal(size=(4, 3))
     bank.reset(x)
     worst = 0.0
@@ -127,14 +103,36 @@ def test_bank_frame_ramp_down_equals_pure_function(with_ramp: bool) -> None:
             inp["f"][k].tolist(), y.tolist(), allowed, None if rate is None else rate.tolist(),
         )  # fmt: skip
         masks = CONFIG_MASKS & allowed & np.isfinite(y)
-        E = e_matrix(inp["euler"][k], "exact")
+        E = e_matrix(inp["euler"][k], e_form)  # type: ignore[arg-type]
         G = gamma_body_mps2(inp["f"][k], inp["euler"][k])
-        per_config = np.zeros((4, 3)) if rate is None else np.tile(rate, (4, 1))
-        if masks[0].all():
-            per_config[0] += frame_ramp_down_mps2(E @ inp["omega"][k], y)
+        per_config: np.ndarray | None = rate
+        if frame_down:
+            per_config = np.zeros((4, 3)) if rate is None else np.tile(rate, (4, 1))
+            if masks[0].all():
+                per_config[0] += frame_ramp_down_mps2(E @ inp["omega"][k], y)
         x = zoh_step(x, inp["omega"][k], G, E, y, masks, GAMMAS, inp["dt"][k],
-                     orthogonal_e=True, y_rate_ned_mps2=per_config)  # fmt: skip
+                     orthogonal_e=e_form == "exact", y_rate_ned_mps2=per_config)  # fmt: skip
         worst = max(worst, float(np.abs(bank.x_hat_body_mps - x).max() / (1 + np.abs(x).max())))
+    return worst
+
+
+@pytest.mark.parametrize("e_form", ["exact", "small_angle"])
+def test_bank_ramp_equals_pure_function(e_form: str) -> None:
+    """With the measurement's ramp (y_rate_ned_mps2: the held y carried forward with the
+    IMU over the step) the bank's compiled step == zoh_step, per-configuration masks and NaN
+    axes included, 300 chained steps: the same closed form, other rounding: 1e-12."""
+    assert _worst_against_zoh_step(np.random.default_rng(12), e_form) <= 1e-12
+
+
+@pytest.mark.parametrize("with_ramp", [True, False])
+def test_bank_frame_ramp_down_equals_pure_function(with_ramp: bool) -> None:
+    """rotate_measurement_down: the compiled step == zoh_step whose `full` ramp takes
+    frame_ramp_down_mps2(E ω, y) when `full` measures every axis (the other
+    configurations' ramps unchanged), per-configuration masks and NaN axes included (the
+    numpy path then), 300 chained steps: the same closed form, other rounding: 1e-12."""
+    worst = _worst_against_zoh_step(
+        np.random.default_rng(29), "exact", with_ramp=with_ramp, frame_down=True
+    )
     assert worst <= 1e-12
 
 
