@@ -130,7 +130,9 @@ def _enable_stamps(sock: socket.socket) -> bool:
 
 def _arrival_s(ancillary: list[tuple[int, int, bytes]]) -> float:
     """The kernel's receive stamp of a datagram on ``time.monotonic``'s clock (now when
-    there is none): the stamp is CLOCK_REALTIME, moved by the two clocks' offset now."""
+    there is none): the stamp is CLOCK_REALTIME, moved by the two clocks' offset now.
+    Linux turns receive stamps on for the whole machine a moment after the first socket
+    asks; a datagram that arrived before then is stamped when it is read."""
     now = time.monotonic()
     for level, kind, data in ancillary:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:

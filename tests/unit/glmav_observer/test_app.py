@@ -214,6 +214,22 @@ def test_superseded_imu_frames_and_bad_frames_are_counted_by_reason() -> None:
     assert summary.records == len(recs) > 0
 
 
+def _wait_for_kernel_stamps(link: Link, tx: socket.socket, port: int) -> None:
+    """Return once the kernel stamps datagrams as they arrive. A machine where no socket
+    had receive stamps on turns them on (a global switch) a moment after the first one
+    asks; a datagram queued before that is stamped when it is read (Linux's
+    ``__sock_recv_timestamp``: "race occurred between timestamp enabling and packet
+    receiving"). So: send one, wait 20 ms, read it; stamped on arrival, it is >= 15 ms
+    older than its read (5 ms of slack for a loaded machine's scheduling)."""
+    for _ in range(50):
+        tx.sendto(b"prime", ("127.0.0.1", port))
+        time.sleep(0.02)
+        got = link.read_datagrams(4)
+        if got and time.monotonic() - got[-1][1] >= 0.015:
+            return
+    raise AssertionError("the kernel never stamped a datagram on arrival")
+
+
 def test_the_live_loop_gives_each_drained_datagram_its_own_arrival() -> None:
     """Service.run drains a UDP link many datagrams a system call (recvmmsg); the
     arrival it exposes while feeding each one (``current_arrival_s``, what bench_fleet's
@@ -232,6 +248,7 @@ def test_the_live_loop_gives_each_drained_datagram_its_own_arrival() -> None:
 
     svc.feed_bytes = feed  # type: ignore[method-assign]
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    _wait_for_kernel_stamps(link, tx, port)
     frames = [_MAV.heartbeat_encode(2, 3, 0, 0, 4).pack(_MAV) for _ in range(3)]
     stamps = []
     for f in frames:  # sent 20 ms apart, queued before the loop reads: one drain reads all
