@@ -40,7 +40,7 @@ from glmav_observer.estimation.observer import (
     FloatArray,
     NonFiniteInputError,
     e_matrix,
-    frame_ramp_down_mps2,
+    frame_ramp_mps2,
     gamma_body_mps2,
     phi_terms,
     zoh_earth,
@@ -109,7 +109,7 @@ class ObserverBank:
         gamma_per_config: Mapping[str, float] | None = None,
         e_form: EForm = "exact",
         g_mps2: float = G_MPS2,
-        rotate_measurement_down: bool = False,
+        rotate_measurement: bool = False,
     ) -> None:
         if e_form not in ("exact", "small_angle"):
             raise ValueError(f"e_form must be 'exact' or 'small_angle', got {e_form!r}")
@@ -117,12 +117,10 @@ class ObserverBank:
         self.g_mps2 = float(g_mps2)
         self.gamma_gain: tuple[float, ...] = _gammas(gamma_per_config)
         self._gamma_arr = np.array(self.gamma_gain)
-        #: `full`'s down measurement compared in the step's frame
-        #: (observer.frame_ramp_down_mps2; EstimatorConfig.rotate_measurement_down)
-        self.rotate_measurement_down = bool(rotate_measurement_down)
-        self._core = BankCore(
-            self.gamma_gain, self.g_mps2, _STANDARD_LOST, self.rotate_measurement_down
-        )
+        #: `full`'s measurement compared in the step's frame
+        #: (observer.frame_ramp_mps2; EstimatorConfig.rotate_measurement)
+        self.rotate_measurement = bool(rotate_measurement)
+        self._core = BankCore(self.gamma_gain, self.g_mps2, _STANDARD_LOST, self.rotate_measurement)
         #: the masks of the last step (None: the last step was :meth:`advance`'s, whose
         #: masks the core's lost axes tell)
         self._masks_last: list[tuple[bool, bool, bool]] | None = _STANDARD_MASKS
@@ -329,10 +327,10 @@ class ObserverBank:
         E = e_matrix(np.array(eul), self.e_form)
         Gam = gamma_body_mps2(np.array(f), np.array(eul), self.g_mps2)
         rate: FloatArray | Sequence[float] | None = y_rate
-        if self.rotate_measurement_down and all(masks[0]):  # `full` measures every axis
-            # as BankCore.step_c: its ramp takes the frame term (frame_ramp_down_mps2)
+        if self.rotate_measurement and all(masks[0]):  # `full` measures every axis
+            # as BankCore.step_c: its ramp takes the frame term (frame_ramp_mps2)
             rates = np.zeros((4, 3)) if y_rate is None else np.tile(np.asarray(y_rate), (4, 1))
-            rates[0] += frame_ramp_down_mps2(E @ np.asarray(w, dtype=np.float64), np.array(y))
+            rates[0] += frame_ramp_mps2(E @ np.asarray(w, dtype=np.float64), np.array(y))
             rate = rates
         x_new = zoh_step(
             np.array(self._core.rows()), np.array(w), Gam, E, np.array(y), np.array(masks),

@@ -4,13 +4,13 @@ from glmav_observer.estimation.inputs import HeldInputs
 
 class BankCore:
     g_mps2: float
-    rotate_y_down: bool
+    rotate_y: bool
     def __init__(
         self,
         gammas: Sequence[float],
         g_mps2: float,
         config_lost: Sequence[int] = ...,
-        rotate_y_down: bool = ...,
+        rotate_y: bool = ...,
     ) -> None: ...
     def centre_imu(self, inputs: HeldInputs, f_new: Sequence[float], dt_imu_s: float) -> None: ...
     def lost(self) -> list[int]: ...

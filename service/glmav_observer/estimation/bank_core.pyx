@@ -63,15 +63,15 @@ cdef class BankCore:
     cdef int config_lost[4]
     # the lost axis each configuration had in the last fused step (advance)
     cdef int last_lost[4]
-    # `full`'s down measurement compared in the step's frame (EstimatorConfig.
-    # rotate_measurement_down): its ramp takes −(ω_e × y)_d
-    cdef public bint rotate_y_down
+    # `full`'s measurement compared in the step's frame (EstimatorConfig.
+    # rotate_measurement): its ramp takes −ω_e × y
+    cdef public bint rotate_y
 
     def __init__(self, gammas, double g_mps2, config_lost=(-1, 0, 1, 2),
-                 bint rotate_y_down=False):
+                 bint rotate_y=False):
         cdef int i, k
         self.g_mps2 = g_mps2
-        self.rotate_y_down = rotate_y_down
+        self.rotate_y = rotate_y
         for i in range(4):
             self.config_lost[i] = config_lost[i]
             self.last_lost[i] = config_lost[i]
@@ -311,11 +311,13 @@ cdef class BankCore:
                 z[1] = e * z[1] + hp1 * (a[1] - (w2 * y0 - w0 * y2) + g * y1)
                 z[2] = e * z[2] + hp1 * (a[2] - (w0 * y1 - w1 * y0) + g * y2)
                 q0, q1, q2 = r0, r1, r2
-                if self.rotate_y_down:
+                if self.rotate_y:
                     # the step's frame turns by ω_e τ from E's: the measurement seen from
-                    # it is exp(−[ω_e]× τ) y ≈ y − (ω_e × y) τ (observer.frame_ramp_down)
+                    # it is exp(−[ω_e]× τ) y ≈ y − (ω_e × y) τ (observer.frame_ramp_mps2)
+                    q0 = q0 - (w1 * y2 - w2 * y1)
+                    q1 = q1 - (w2 * y0 - w0 * y2)
                     q2 = q2 - (w0 * y1 - w1 * y0)
-                if ramp or self.rotate_y_down:  # + h² φ2 (γ ρ − ω_e × ρ)
+                if ramp or self.rotate_y:  # + h² φ2 (γ ρ − ω_e × ρ)
                     c0 = g * q0 - (w1 * q2 - w2 * q1)
                     c1_ = g * q1 - (w2 * q0 - w0 * q2)
                     c2 = g * q2 - (w0 * q1 - w1 * q0)

@@ -67,10 +67,10 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
         "trapezoid_imu": _r("", "physics", "integrate the IMU with the trapezoid at its "
                             "samples' times: a held sample lags by half the IMU's interval "
                             "(20 ms at 25 Hz)"),
-        "rotate_measurement_down": _r("", "physics", "compare `full`'s down measurement in "
-                                      "the frame of the bank's step: the held E leaves "
-                                      "(ω_e × v)_d·τ, pitch rate × horizontal speed, in "
-                                      "its correction (observer.frame_ramp_down_mps2)"),
+        "rotate_measurement": _r("", "physics", "compare `full`'s measurement in the frame "
+                                 "of the bank's step: the held E leaves (ω_e × v)·τ in its "
+                                 "correction, down a pitch rate × horizontal speed "
+                                 "(observer.frame_ramp_mps2)"),
         "max_gap_s": _r("s", "physics", "a longer silence restarts the bank: 1 s of dead "
                         "reckoning at 0.3 m/s² bias is already 0.3 m/s"),
         "follow_unaided": _r("", "measured", "while the autopilot says an axis is unaided, "

@@ -390,24 +390,25 @@ def zoh_step(  # noqa: PLR0917 -- positional API mirrors the paper's symbols
     return _zoh_general_e(x, w, G, E_, ybar, mask, gam, h, rho)
 
 
-def frame_ramp_down_mps2(omega_ned_radps: ArrayLike, y_ned_mps: ArrayLike) -> FloatArray:
-    """The down measurement's rate seen from the frame of a step, (0, 0, −(ω_e × y)_d)
-    (..., 3) m/s², to add to ``zoh_step``'s ramp of a configuration measuring all three
-    axes (``EstimatorConfig.rotate_measurement_down``).
+def frame_ramp_mps2(omega_ned_radps: ArrayLike, y_ned_mps: ArrayLike) -> FloatArray:
+    """The measurement's rate seen from the frame of a step, −ω_e × y (..., 3) m/s², to
+    add to ``zoh_step``'s ramp of a configuration measuring all three axes
+    (``EstimatorConfig.rotate_measurement``).
 
     Over a step the bank holds the E of its start while the body turns at ω: in the frozen
     earth coordinates z = E x̂ (docs/design/observer-notes.md, "Discrete-time update") a
-    measurement y fixed in NED reads exp(−[ω_e]× τ) y ≈ y − (ω_e × y) τ, ω_e = E ω. Its
-    down component, −(ω_n y_e − ω_e y_n) τ, is a pitch or roll rate times the horizontal
-    speed (3 m/s² at 0.5 rad/s and 6 m/s) that the held y leaves in the down axis's
-    correction; first order in ω τ (the τ² term is |ω|² |y| τ²/2: 3e-4 m/s at 0.5 rad/s,
-    6 m/s and 20 ms). The horizontal components are left out: there the held frame stood
-    for a lead the estimate keeps (docs/field-failures.md, "The down axis of a clean
-    flight")."""
+    measurement y fixed in NED reads exp(−[ω_e]× τ) y ≈ y − (ω_e × y) τ, ω_e = E ω; first
+    order in ω τ (the τ² term is |ω|² |y| τ²/2: 3e-4 m/s at 0.5 rad/s, 6 m/s and 20 ms).
+    Down, −(ω_n y_e − ω_e y_n) is a pitch or roll rate times the horizontal speed (3 m/s²
+    at 0.5 rad/s and 6 m/s); north and east, a yaw rate times the other horizontal
+    component and a roll or pitch rate times the vertical one. Without it the held y
+    leaves that much in the correction: a lead of about Δt/2 in turns (which the
+    autopilot's own lag made look good on north) and a push the wrong way at a roll's
+    onset in a climb or descent (docs/field-failures.md, "The frame of a step")."""
     w = np.asarray(omega_ned_radps, dtype=np.float64)
     y = np.asarray(y_ned_mps, dtype=np.float64)
-    out = np.zeros(np.broadcast_shapes(w.shape, y.shape), dtype=np.float64)
-    out[..., 2] = -(w[..., 0] * y[..., 1] - w[..., 1] * y[..., 0])
+    w_b, y_b = np.broadcast_arrays(w, y)
+    out: FloatArray = -np.cross(w_b, y_b)
     return out
 
 

@@ -123,9 +123,9 @@ class EstimatorConfig:
     #: integrate the IMU with the trapezoid at its samples' own times (BankCore.centre_imu)
     #: instead of holding each sample until the next (Δt/2 of lag)
     trapezoid_imu: bool = True
-    #: compare `full`'s down measurement in the frame of the bank's step, which turns with
-    #: the body from the held E (observer.frame_ramp_down_mps2)
-    rotate_measurement_down: bool = True
+    #: compare `full`'s measurement in the frame of the bank's step, which turns with the
+    #: body from the held E (observer.frame_ramp_mps2)
+    rotate_measurement: bool = True
     max_gap_s: float = 1.0
     #: while the autopilot says an axis is unaided (GPS lost), ``active`` follows its
     #: velocity there (``VehicleEstimator._follow_unaided``); False: filtered as usual
@@ -222,7 +222,7 @@ class VehicleEstimator:
         """Every part afresh; the counters, events and sequence numbers are kept."""
         cfg = self.cfg
         self._seed_check_t0_s = None
-        self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2, cfg.rotate_measurement_down)
+        self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2, cfg.rotate_measurement)
         self.fdi = FaultDetector(cfg.fdi)
         spike = cfg.fdi.despike
         self.despike = Despiker(spike.floor_mps2, spike.k_sigma, spike.tau_samples)

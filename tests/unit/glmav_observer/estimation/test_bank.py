@@ -15,7 +15,7 @@ from glmav_observer.estimation.bank import BatchedBank, ObserverBank
 from glmav_observer.estimation.observer import (
     NonFiniteInputError,
     e_matrix,
-    frame_ramp_down_mps2,
+    frame_ramp_mps2,
     gamma_body_mps2,
     zoh_step,
 )
@@ -80,17 +80,17 @@ def _worst_against_zoh_step(
     e_form: str,
     *,
     with_ramp: bool = True,
-    frame_down: bool = False,
+    frame: bool = False,
 ) -> float:
     """300 chained steps of the bank (``step_floats``) and of the pure ``zoh_step`` from
     the same random state and inputs (per-configuration masks, NaN axes), with the
-    measurement's ramp (``with_ramp``) and `full`'s down frame term (``frame_down``:
-    ``ObserverBank(rotate_measurement_down=True)`` against ``frame_ramp_down_mps2(E ω, y)``
-    added to `full`'s ramp when it measures every axis); the worst relative difference."""
+    measurement's ramp (``with_ramp``) and `full`'s frame term (``frame``:
+    ``ObserverBank(rotate_measurement=True)`` against ``frame_ramp_mps2(E ω, y)`` added to
+    `full`'s ramp when it measures every axis); the worst relative difference."""
     n = 300
     inp = _random_inputs(rng, n, np.pi if e_form == "exact" else 0.3)
     rates = rng.normal(scale=4.0, size=(n, 3))
-    bank = ObserverBank(e_form=e_form, rotate_measurement_down=frame_down)  # type: ignore[arg-type]
+    bank = ObserverBank(e_form=e_form, rotate_measurement=frame)  # type: ignore[arg-type]
     x = rng.normal(size=(4, 3))
     bank.reset(x)
     worst = 0.0
@@ -106,10 +106,10 @@ def _worst_against_zoh_step(
         E = e_matrix(inp["euler"][k], e_form)  # type: ignore[arg-type]
         G = gamma_body_mps2(inp["f"][k], inp["euler"][k])
         per_config: np.ndarray | None = rate
-        if frame_down:
+        if frame:
             per_config = np.zeros((4, 3)) if rate is None else np.tile(rate, (4, 1))
             if masks[0].all():
-                per_config[0] += frame_ramp_down_mps2(E @ inp["omega"][k], y)
+                per_config[0] += frame_ramp_mps2(E @ inp["omega"][k], y)
         x = zoh_step(x, inp["omega"][k], G, E, y, masks, GAMMAS, inp["dt"][k],
                      orthogonal_e=e_form == "exact", y_rate_ned_mps2=per_config)  # fmt: skip
         worst = max(worst, float(np.abs(bank.x_hat_body_mps - x).max() / (1 + np.abs(x).max())))
@@ -125,53 +125,65 @@ def test_bank_ramp_equals_pure_function(e_form: str) -> None:
 
 
 @pytest.mark.parametrize("with_ramp", [True, False])
-def test_bank_frame_ramp_down_equals_pure_function(with_ramp: bool) -> None:
-    """rotate_measurement_down: the compiled step == zoh_step whose `full` ramp takes
-    frame_ramp_down_mps2(E ω, y) when `full` measures every axis (the other
+def test_bank_frame_ramp_equals_pure_function(with_ramp: bool) -> None:
+    """rotate_measurement: the compiled step == zoh_step whose `full` ramp takes
+    frame_ramp_mps2(E ω, y) when `full` measures every axis (the other
     configurations' ramps unchanged), per-configuration masks and NaN axes included (the
     numpy path then), 300 chained steps: the same closed form, other rounding: 1e-12."""
     worst = _worst_against_zoh_step(
-        np.random.default_rng(29), "exact", with_ramp=with_ramp, frame_down=True
+        np.random.default_rng(29), "exact", with_ramp=with_ramp, frame=True
     )
     assert worst <= 1e-12
 
 
-def test_frame_ramp_down_removes_the_held_attitudes_down_error() -> None:
-    """Level flight north at 6 m/s, pitching nose-up at q = 0.5 rad/s, the measurement
-    exact (NED velocity constant, so f = Eᵀ (0, 0, −g)), 50 Hz steps with the attitude of
-    each step's start held, the published estimate E(t) x̂ at the step's end: the held
-    frame leaves (ω_e × v)_d = −q v_n = −3 m/s² in the down axis's correction. Without the
-    frame term `full`'s down error settles near 3 m/s² times about half a step (30 mm/s);
-    with it, what is left is second order in ω Δt."""
+@pytest.mark.parametrize(
+    ("axis", "rate_axis", "v_ned_mps", "held_error_mps"),
+    [
+        # level north at 6 m/s pitching nose-up at 0.5 rad/s: (ω_e × v)_d = −q v_n = −3 m/s²
+        (2, 1, (6.0, 0.0, 0.0), 0.03),
+        # descending at 2 m/s, rolling at 0.5 rad/s: (ω_e × v)_e = −p v_d = −1 m/s²
+        (1, 0, (0.0, 0.0, 2.0), 0.01),
+    ],
+)
+def test_frame_ramp_removes_the_held_attitudes_error(
+    axis: int, rate_axis: int, v_ned_mps: tuple[float, float, float], held_error_mps: float
+) -> None:
+    """The NED velocity constant and measured exactly (so f = Eᵀ (0, 0, −g)), the body
+    turning at 0.5 rad/s from level, 50 Hz steps with the attitude of each step's start
+    held, the published estimate E(t) x̂ at the step's end. The held frame leaves
+    (ω_e × v)·τ in the correction: without the frame term `full`'s error on the axis
+    settles near |ω × v| times about half a step (3 m/s² → 30 mm/s down; 1 m/s² → 10 mm/s
+    east); with it, what is left is second order in ω Δt."""
     from glmav_observer.estimation.observer import G_MPS2
 
-    q, v_n, h, n = 0.5, 6.0, 0.02, 50
+    rate, h, n = 0.5, 0.02, 50
+    v = np.array(v_ned_mps)
     errors = {}
     for rotate in (False, True):
-        bank = ObserverBank(rotate_measurement_down=rotate)
-        bank.reset(np.array([v_n, 0.0, 0.0]))  # level at t = 0: body = NED
+        bank = ObserverBank(rotate_measurement=rotate)
+        bank.reset(v)  # level at t = 0: body = NED
         for k in range(n):
-            theta0, theta1 = q * k * h, q * (k + 1) * h
-            E0 = e_exact(np.array([0.0, theta0, 0.0]))
-            f = E0.T @ np.array([0.0, 0.0, -G_MPS2])
-            bank.step_floats(h, [0.0, theta0, 0.0], [0.0, q, 0.0], f.tolist(), [v_n, 0.0, 0.0])
-        E1 = e_exact(np.array([0.0, theta1, 0.0]))
-        errors[rotate] = float((E1 @ bank.x_hat_body_mps[0])[2])  # truth's v_d = 0
-    # held frame: measured −0.0312 m/s (3 m/s² over about half a 20 ms step); 0.02 leaves
-    # a third of it for another rounding of the step
-    assert abs(errors[False]) > 0.02
-    # with the term the first order is gone (measured 3e-7 m/s); the second-order term
-    # left out, |ω|²|v|Δt²/2 = 6e-4 m/s, bounds what may be left
-    assert abs(errors[True]) < 6e-4
+            eul0, eul1, w = np.zeros(3), np.zeros(3), np.zeros(3)
+            eul0[rate_axis], eul1[rate_axis], w[rate_axis] = rate * k * h, rate * (k + 1) * h, rate
+            f = e_exact(eul0).T @ np.array([0.0, 0.0, -G_MPS2])
+            bank.step_floats(h, eul0.tolist(), w.tolist(), f.tolist(), v.tolist())
+        errors[rotate] = float((e_exact(eul1) @ bank.x_hat_body_mps[0])[axis] - v[axis])
+    # held frame: |ω × v| over about half a 20 ms step (measured −0.0312 and −0.0104 m/s);
+    # two thirds of it leave a third for another rounding of the step
+    assert abs(errors[False]) > 2 / 3 * held_error_mps
+    # with the term the first order is gone; the second-order term left out,
+    # |ω|²|v|Δt²/2 (3e-4 m/s at 6 m/s, 1e-4 at 2 m/s; measured 3e-7 and 9e-8), bounds
+    # what may be left
+    assert abs(errors[True]) < rate**2 * float(np.linalg.norm(v)) * h * h / 2
 
 
-def test_frame_ramp_down_is_the_down_component_of_minus_omega_cross_y() -> None:
-    # ω_e = (0, 0.5, 0) (pitch at level, heading north), y = (6, 2, 1): −(ω × y)_d =
-    # −(ω_n y_e − ω_e y_n) = 0.5·6 = 3 m/s²; north and east untouched (exact: products of
-    # small integers and halves)
-    out = frame_ramp_down_mps2(np.array([0.0, 0.5, 0.0]), np.array([6.0, 2.0, 1.0]))
-    assert out.tolist() == [0.0, 0.0, 3.0]
-    batch = frame_ramp_down_mps2(np.zeros((4, 3)), np.ones(3))
+def test_frame_ramp_is_minus_omega_cross_y() -> None:
+    # ω_e = (0.5, 0.25, 1) rad/s, y = (6, 2, 1) m/s: ω × y = (0.25·1 − 1·2, 1·6 − 0.5·1,
+    # 0.5·2 − 0.25·6) = (−1.75, 5.5, −0.5), so −ω × y = (1.75, −5.5, 0.5) m/s² (exact:
+    # products of small integers, halves and quarters)
+    out = frame_ramp_mps2(np.array([0.5, 0.25, 1.0]), np.array([6.0, 2.0, 1.0]))
+    assert out.tolist() == [1.75, -5.5, 0.5]
+    batch = frame_ramp_mps2(np.zeros((4, 3)), np.ones(3))
     assert batch.shape == (4, 3) and not batch.any()
 
 
