@@ -53,6 +53,7 @@ from glmav_observer.ingest.pipeline import (
     IngestEvent,
     NewVehicle,
     RadioStatus,
+    VehicleAutopilot,
     VehicleConflict,
     VehicleEvicted,
     VehicleReset,
@@ -72,7 +73,14 @@ from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, V
 logger = logging.getLogger(__name__)
 
 #: The ingest events about a vehicle rather than a sample of it.
-_VEHICLE_EVENTS = (NewVehicle, VehicleEvicted, VehicleReset, VehicleConflict, RadioStatus)
+_VEHICLE_EVENTS = (
+    NewVehicle,
+    VehicleEvicted,
+    VehicleReset,
+    VehicleConflict,
+    RadioStatus,
+    VehicleAutopilot,
+)
 #: How often (host seconds) the live loop checks received rates against requested ones.
 RATE_CHECK_PERIOD_S = 1.0
 #: Reads from one ready link per loop turn before the loop checks stop, rates and outbox.
@@ -236,6 +244,9 @@ class Service:
                 continue
             if isinstance(ev, NewVehicle):
                 self._new_estimator(ev.sysid, link_id)
+                continue
+            if isinstance(ev, VehicleAutopilot):
+                self.estimators[ev.sysid].set_autopilot(ev.autopilot, ev.mav_type)
                 continue
             if isinstance(ev, VehicleEvicted):
                 est = self.estimators.pop(ev.sysid, None)

@@ -219,6 +219,9 @@ def replay_flight_log(
         sysid = LOG_SYSID
         monitor = RateMonitor({}, window_s=config.ingest.rate_window_s)
         est = VehicleEstimator(sysid, config.estimation, rates_fn=monitor.rates)
+        accel_filter_hz = log.streams.params.get("INS_ACCEL_FILTER")
+        if log.streams.format == "dataflash" and accel_filter_hz is not None:
+            est.set_accel_filter_hz(accel_filter_hz)  # what its IMU messages went through
         service.estimators[sysid] = est
         ref_source = log.streams.sources.get("ekf", "ekf")
         t_ref = log.t_reference_s.tolist()

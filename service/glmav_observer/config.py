@@ -186,6 +186,7 @@ _BOUNDS: dict[str, Check] = {
     "g_mps2": within(9.7, 9.9),
     "health_rate_hz": within(0.0, 1000.0, lo_open=True),
     "max_gap_s": within(0.0, 60.0, lo_open=True),
+    "imu_filter_hz": within(0.0, 1000.0),
     "handover_contamination_mps": within(0.0, 100.0, lo_open=True),
     "metrics_skip_s": within(0.0, 3600.0),
     "gamma_full_min": within(0.0, 1000.0, lo_open=True),

@@ -110,6 +110,7 @@ class ObserverBank:
         e_form: EForm = "exact",
         g_mps2: float = G_MPS2,
         rotate_measurement: bool = False,
+        imu_lead_s: float = 0.0,
     ) -> None:
         if e_form not in ("exact", "small_angle"):
             raise ValueError(f"e_form must be 'exact' or 'small_angle', got {e_form!r}")
@@ -120,7 +121,9 @@ class ObserverBank:
         #: `full`'s measurement compared in the step's frame
         #: (observer.frame_ramp_mps2; EstimatorConfig.rotate_measurement)
         self.rotate_measurement = bool(rotate_measurement)
-        self._core = BankCore(self.gamma_gain, self.g_mps2, _STANDARD_LOST, self.rotate_measurement)
+        self._core = BankCore(
+            self.gamma_gain, self.g_mps2, _STANDARD_LOST, self.rotate_measurement, imu_lead_s
+        )
         #: the masks of the last step (None: the last step was :meth:`advance`'s, whose
         #: masks the core's lost axes tell)
         self._masks_last: list[tuple[bool, bool, bool]] | None = _STANDARD_MASKS
@@ -198,8 +201,19 @@ class ObserverBank:
             self._core.set_e_list(e_matrix(np.array(euler_rad), self.e_form).ravel().tolist())
 
     def centre_imu(self, inputs: HeldInputs, f_new_body_mps2: Sequence[float], dt_s: float) -> None:
-        """The trapezoid's correction at a new IMU sample (``BankCore.centre_imu``)."""
+        """The trapezoid's correction at a new IMU sample, with the accelerometer filter's
+        delay :attr:`imu_lead_s` taken out (``BankCore.centre_imu``)."""
         self._core.centre_imu(inputs, f_new_body_mps2, dt_s)
+
+    @property
+    def imu_lead_s(self) -> float:
+        """The accelerometer filter's delay taken out at each IMU sample, s
+        (:mod:`.imu_filter`)."""
+        return self._core.imu_lead_s
+
+    @imu_lead_s.setter
+    def imu_lead_s(self, value: float) -> None:
+        self._core.imu_lead_s = float(value)
 
     def reset(self, v_body_mps: ArrayLike | None = None) -> None:
         """Set every configuration to ``v_body_mps`` ((3,) or (4, 3), default zero)."""

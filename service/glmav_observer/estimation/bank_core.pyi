@@ -5,12 +5,14 @@ from glmav_observer.estimation.inputs import HeldInputs
 class BankCore:
     g_mps2: float
     rotate_y: bool
+    imu_lead_s: float
     def __init__(
         self,
         gammas: Sequence[float],
         g_mps2: float,
         config_lost: Sequence[int] = ...,
         rotate_y: bool = ...,
+        imu_lead_s: float = ...,
     ) -> None: ...
     def centre_imu(self, inputs: HeldInputs, f_new: Sequence[float], dt_imu_s: float) -> None: ...
     def lost(self) -> list[int]: ...

@@ -66,12 +66,15 @@ cdef class BankCore:
     # `full`'s measurement compared in the step's frame (EstimatorConfig.
     # rotate_measurement): its ramp takes −ω_e × y
     cdef public bint rotate_y
+    # the accelerometer's filter delay taken out at each IMU sample (centre_imu), s
+    cdef public double imu_lead_s
 
     def __init__(self, gammas, double g_mps2, config_lost=(-1, 0, 1, 2),
-                 bint rotate_y=False):
+                 bint rotate_y=False, double imu_lead_s=0.0):
         cdef int i, k
         self.g_mps2 = g_mps2
         self.rotate_y = rotate_y
+        self.imu_lead_s = imu_lead_s
         for i in range(4):
             self.config_lost[i] = config_lost[i]
             self.last_lost[i] = config_lost[i]
@@ -141,10 +144,12 @@ cdef class BankCore:
 
     def centre_imu(self, HeldInputs inputs, f_new, double dt_imu_s):
         """The trapezoid's correction at an IMU sample (inputs module docstring): every
-        state (body frame) and the integrals A, C, ∫ f dt take (f_k − f_{k−1}) Δt/2, with
-        f_{k−1} the held specific force, f_k = ``f_new`` and Δt = ``dt_imu_s`` the IMU's
-        interval; A and C rotated with the last step's E. Nothing without a held f, for
-        Δt ≤ 0 or for a non-finite difference."""
+        state (body frame) and the integrals A, C, ∫ f dt take (f_k − f_{k−1}) (Δt/2 + τ),
+        with f_{k−1} the held specific force, f_k = ``f_new``, Δt = ``dt_imu_s`` the IMU's
+        interval and τ = ``imu_lead_s`` the accelerometer filter's delay (imu_filter: the
+        change is taken τ earlier, v(t) ≈ ∫ f_filtered + τ f_filtered(t)); A and C rotated
+        with the last step's E. Nothing without a held f, for Δt ≤ 0 or for a non-finite
+        difference."""
         cdef double d[3]
         cdef double fn[3]
         cdef double fo[3]
@@ -154,7 +159,7 @@ cdef class BankCore:
         load3(f_new, fn)
         load3(inputs.f_body_mps2, fo)
         for k in range(3):
-            d[k] = (fn[k] - fo[k]) * (0.5 * dt_imu_s)
+            d[k] = (fn[k] - fo[k]) * (0.5 * dt_imu_s + self.imu_lead_s)
             if not isfinite(d[k]):
                 return
         for i in range(4):

@@ -71,6 +71,13 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                                  "of the bank's step: the held E leaves (ω_e × v)·τ in its "
                                  "correction, down a pitch rate × horizontal speed "
                                  "(observer.frame_ramp_mps2)"),
+        "compensate_imu_filter": _r("", "physics", "the autopilot sends its accelerometer "
+                                    "after a two-pole low-pass whose group delay, √2/(2π f_c), "
+                                    "an integrated velocity inherits (11.25 ms at ArduPilot's "
+                                    "20 Hz; estimation.imu_filter)"),
+        "imu_filter_hz": _r("Hz", "requirement", "the vehicle's own setting (ArduPilot "
+                            "INS_ACCEL_FILTER); 0 takes the firmware's default "
+                            "(DEFAULT_ACCEL_FILTER in ArduPilot's AP_InertialSensor.cpp)"),
         "max_gap_s": _r("s", "physics", "a longer silence restarts the bank: 1 s of dead "
                         "reckoning at 0.3 m/s² bias is already 0.3 m/s"),
         "follow_unaided": _r("", "measured", "while the autopilot says an axis is unaided, "

@@ -65,6 +65,7 @@ from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.gain import FullGain
+from glmav_observer.estimation.imu_filter import accel_filter_delay_s
 from glmav_observer.estimation.imu_monitor import ImuConsistency, ImuEvent
 from glmav_observer.estimation.inputs import HeldInputs
 from glmav_observer.estimation.observer import G_MPS2, EForm
@@ -126,6 +127,11 @@ class EstimatorConfig:
     #: compare `full`'s measurement in the frame of the bank's step, which turns with the
     #: body from the held E (observer.frame_ramp_mps2)
     rotate_measurement: bool = True
+    #: take the autopilot's accelerometer low-pass delay out of the IMU (:mod:`.imu_filter`)
+    compensate_imu_filter: bool = True
+    #: that low-pass's cutoff (Hz), e.g. ArduPilot's INS_ACCEL_FILTER; 0: the firmware's
+    #: default, named by the vehicle's HEARTBEAT (ArduPilot 20 Hz, Rover 10; others none)
+    imu_filter_hz: float = 0.0
     max_gap_s: float = 1.0
     #: while the autopilot says an axis is unaided (GPS lost), ``active`` follows its
     #: velocity there (``VehicleEstimator._follow_unaided``); False: filtered as usual
@@ -215,6 +221,9 @@ class VehicleEstimator:
         #: a seed applied at this vehicle time is checked against the measurements until
         #: SEED_CHECK_S later (None: nothing to check)
         self._seed_check_t0_s: float | None = None  # (set by _restart)
+        #: the accelerometer filter's delay taken out (a vehicle fact: kept across restarts;
+        #: the configured cutoff's until the HEARTBEAT names the firmware: set_autopilot)
+        self._imu_lead_s = self._imu_filter_delay_s(None, None)
         self._restart()
 
     # ------------------------------------------------------------------ state
@@ -222,7 +231,9 @@ class VehicleEstimator:
         """Every part afresh; the counters, events and sequence numbers are kept."""
         cfg = self.cfg
         self._seed_check_t0_s = None
-        self.bank = ObserverBank(cfg.gamma, cfg.e_form, cfg.g_mps2, cfg.rotate_measurement)
+        self.bank = ObserverBank(
+            cfg.gamma, cfg.e_form, cfg.g_mps2, cfg.rotate_measurement, self._imu_lead_s
+        )
         self.fdi = FaultDetector(cfg.fdi)
         spike = cfg.fdi.despike
         self.despike = Despiker(spike.floor_mps2, spike.k_sigma, spike.tau_samples)
@@ -240,6 +251,29 @@ class VehicleEstimator:
         self._use: list[bool] = [False, False, False]
         self._last_residual: list[float] = [math.nan] * 3
         self._last_ratio: list[float] = [0.0, 0.0, 0.0]
+
+    def _imu_filter_delay_s(
+        self, autopilot: int | None, mav_type: int | None, vehicle_hz: float | None = None
+    ) -> float:
+        cfg = self.cfg
+        if not cfg.compensate_imu_filter:
+            return 0.0
+        return accel_filter_delay_s(cfg.imu_filter_hz, autopilot, mav_type, vehicle_hz)
+
+    def set_autopilot(self, autopilot: int, mav_type: int) -> None:
+        """The vehicle's HEARTBEAT named its firmware and type: take its accelerometer
+        filter's delay out of the IMU from now on (:mod:`.imu_filter`)."""
+        self._set_imu_lead(self._imu_filter_delay_s(autopilot, mav_type))
+
+    def set_accel_filter_hz(self, vehicle_hz: float) -> None:
+        """The vehicle's own accelerometer filter setting (a log's ``INS_ACCEL_FILTER``),
+        unless ``[estimation] imu_filter_hz`` overrides it (:mod:`.imu_filter`)."""
+        self._set_imu_lead(self._imu_filter_delay_s(None, None, vehicle_hz))
+
+    def _set_imu_lead(self, lead_s: float) -> None:
+        self._imu_lead_s = lead_s
+        self.bank.imu_lead_s = lead_s
+        self.counters["imu_filter_delay_us"] = round(lead_s * 1e6)
 
     def restart(self, reason: str) -> None:
         """Start the bank afresh (clock reset, long gap); metrics and events are kept."""

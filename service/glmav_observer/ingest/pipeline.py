@@ -92,7 +92,25 @@ class RadioStatus:
     txbuf_percent: int
 
 
-IngestEvent = Sample | VehicleReset | NewVehicle | VehicleEvicted | VehicleConflict | RadioStatus
+@dataclass(frozen=True, slots=True)
+class VehicleAutopilot:
+    """The vehicle's first HEARTBEAT from its own component: which firmware (``autopilot``,
+    MAV_AUTOPILOT) and vehicle type (``mav_type``, MAV_TYPE) it is."""
+
+    sysid: int
+    autopilot: int
+    mav_type: int
+
+
+IngestEvent = (
+    Sample
+    | VehicleReset
+    | NewVehicle
+    | VehicleEvicted
+    | VehicleConflict
+    | RadioStatus
+    | VehicleAutopilot
+)
 
 #: MAVLink: MAV_CMD_SET_MESSAGE_INTERVAL (a COMMAND_ACK answering a rate request).
 _CMD_SET_MESSAGE_INTERVAL = 511
@@ -151,6 +169,8 @@ class VehicleInput:
     conflict: bool = False
     #: host time this vehicle was last reported heard to a shared admission
     t_admission_s: float = float("-inf")
+    #: its HEARTBEAT's (autopilot, type), once one came from its component
+    autopilot: tuple[int, int] | None = None
 
     def input_counters(self) -> collections.Counter[str]:
         """What this vehicle's input counted (a bound method, not a closure: a copy of the
@@ -369,8 +389,8 @@ class Ingest:
             if compid == v.compid:
                 v.t_host_last_s = t_host_s
                 v.counters["heartbeat"] += 1
-            else:
-                self.counters["ignored_messages"] += 1
+                return self._autopilot(v, msg, [])
+            self.counters["ignored_messages"] += 1
             return []
         before = set(self.vehicles)
         v = self._new_vehicle(sysid, compid, t_host_s)
@@ -379,6 +399,14 @@ class Ingest:
             return events
         v.counters["heartbeat"] += 1
         events.append(NewVehicle(sysid, compid))
+        return self._autopilot(v, msg, events)
+
+    @staticmethod
+    def _autopilot(v: VehicleInput, msg: Any, events: list[IngestEvent]) -> list[IngestEvent]:
+        """The firmware and type of the vehicle's first HEARTBEAT, told once."""
+        if v.autopilot is None:
+            v.autopilot = (int(msg.autopilot), int(msg.type))
+            events.append(VehicleAutopilot(v.sysid, *v.autopilot))
         return events
 
     def _release(self, v: VehicleInput, t_max_s: float, events: list[IngestEvent]) -> None:

@@ -20,6 +20,7 @@ from glmav_observer.ingest.pipeline import (
     Ingest,
     IngestConfig,
     NewVehicle,
+    VehicleAutopilot,
     VehicleConflict,
     VehicleEvicted,
     VehicleReset,
@@ -79,6 +80,8 @@ class Harness:
                 self.estimators[ev.sysid] = VehicleEstimator(ev.sysid, self.estimator_config)
             elif isinstance(ev, VehicleConflict):
                 pass  # counted by the clock (conflicting_sources)
+            elif isinstance(ev, VehicleAutopilot):
+                self.estimators[ev.sysid].set_autopilot(ev.autopilot, ev.mav_type)
             elif isinstance(ev, VehicleEvicted):
                 self.estimators.pop(ev.sysid, None)
                 self.records.pop(ev.sysid, None)

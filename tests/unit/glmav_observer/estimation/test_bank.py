@@ -187,12 +187,14 @@ def test_frame_ramp_is_minus_omega_cross_y() -> None:
     assert batch.shape == (4, 3) and not batch.any()
 
 
-@pytest.mark.parametrize("centred", [True, False])
-def test_centre_imu_makes_the_integrals_trapezoidal(centred: bool) -> None:
+@pytest.mark.parametrize(("centred", "lead_s"), [(True, 0.0), (False, 0.0), (True, 0.01125)])
+def test_centre_imu_makes_the_integrals_trapezoidal(centred: bool, lead_s: float) -> None:
     """A specific force that grows linearly, f(t) = f0 + s t, sampled every 40 ms (a 25 Hz
     IMU), level attitude: with BankCore.centre_imu at each sample, A = ∫ a dt and every
     state's dead-reckoned axis equal the exact integral at the samples (the trapezoid is
-    exact for a linear f) up to rounding; held (ZOH), both trail it by s T t / 2."""
+    exact for a linear f) up to rounding; held (ZOH), both trail it by s T t / 2. With the
+    accelerometer filter's delay τ taken out (``imu_lead_s``) each change counts τ
+    earlier: the integral leads by τ (f(t) − f0) = τ s t."""
     from glmav_observer.estimation.inputs import HeldInputs
     from glmav_observer.estimation.observer import G_MPS2
 
@@ -203,7 +205,7 @@ def test_centre_imu_makes_the_integrals_trapezoidal(centred: bool) -> None:
     inputs.omega_att_radps = (0.0, 0.0, 0.0)
     inputs.f_body_mps2 = tuple(f0.tolist())
     inputs.hold_measurement([0.0, 0.0, 0.0])
-    bank = ObserverBank()
+    bank = ObserverBank(imu_lead_s=lead_s)
     no_use = [False, False, False]  # no axis measured: the states dead-reckon
     for k in range(1, n + 1):
         t = k * T
@@ -218,7 +220,7 @@ def test_centre_imu_makes_the_integrals_trapezoidal(centred: bool) -> None:
     t_end = n * T
     exact = (f0 + np.array([0.0, 0.0, g])) * t_end + s * t_end**2 / 2
     offset = 0.0 if centred else 1.0
-    want = exact - offset * s * T * t_end / 2
+    want = exact - offset * s * T * t_end / 2 + lead_s * s * t_end
     np.testing.assert_allclose(inputs.a_int, want, atol=1e-12)
     np.testing.assert_allclose(bank.x_hat_ned_mps(), np.broadcast_to(want, (4, 3)), atol=1e-12)
 

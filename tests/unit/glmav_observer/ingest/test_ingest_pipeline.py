@@ -10,7 +10,13 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from glmav_observer.ingest.convert import MG_TO_MPS2, RawImuScale
 from glmav_observer.ingest.framing import FrameDecoder
-from glmav_observer.ingest.pipeline import Ingest, IngestConfig, NewVehicle, VehicleReset
+from glmav_observer.ingest.pipeline import (
+    Ingest,
+    IngestConfig,
+    NewVehicle,
+    VehicleAutopilot,
+    VehicleReset,
+)
 from glmav_observer.ingest.samples import AttitudeSample, ImuSample, ImuSource, VelocitySample
 
 
@@ -94,6 +100,22 @@ def test_gcs_messages_do_not_create_vehicles() -> None:
     hb = dialect.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)
     assert ing.on_message(_roundtrip(hb, sysid=255, compid=190), 0.0) == []
     assert ing.vehicles == {}
+
+
+def test_the_first_heartbeat_names_the_firmware_once() -> None:
+    """A vehicle registered by its data (ATTITUDE) before its HEARTBEAT, and one by its
+    HEARTBEAT: each is told its (autopilot, type) once, from its own component only."""
+    ing = Ingest(IngestConfig())
+    ing.on_message(_att(10, sysid=1), 0.0)
+    copter = dialect.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3)  # quad, ArduPilot
+    other = _roundtrip(copter, sysid=1, compid=50)  # another component of sysid 1
+    assert ing.on_message(other, 0.1) == []
+    ev = ing.on_message(_roundtrip(copter), 0.2)
+    assert ev == [VehicleAutopilot(1, 3, 2)]
+    assert ing.on_message(_roundtrip(copter), 1.2) == []  # told once
+    rover = dialect.MAVLink_heartbeat_message(10, 3, 0, 0, 4, 3)
+    ev = ing.on_message(_roundtrip(rover, sysid=2), 0.3)
+    assert ev == [NewVehicle(2, 1), VehicleAutopilot(2, 3, 10)]
 
 
 def test_reboot_gives_vehicle_reset() -> None:
