@@ -225,6 +225,8 @@ class VehicleEstimator:
         #: the configured cutoff's until the HEARTBEAT names the firmware: set_autopilot)
         self._imu_lead_s = self._imu_filter_delay_s(None, None)
         self._restart()
+        if self._imu_lead_s > 0.0:  # configured: said from the start
+            self.counters["imu_filter_delay_us"] = round(self._imu_lead_s * 1e6)
 
     # ------------------------------------------------------------------ state
     def _restart(self) -> None:

@@ -62,7 +62,9 @@ def test_the_estimator_takes_the_delay_from_its_heartbeat(
     cfg = dataclasses.replace(EstimatorConfig(), compensate_imu_filter=compensate, imu_filter_hz=hz)
     est = VehicleEstimator(1, cfg)
     # before the HEARTBEAT: only a configured cutoff is known
-    assert est.bank.imu_lead_s == (lowpass2_group_delay_s(hz) if compensate else 0.0)
+    before_s = lowpass2_group_delay_s(hz) if compensate else 0.0
+    assert est.bank.imu_lead_s == before_s
+    assert est.counters["imu_filter_delay_us"] == round(before_s * 1e6)
     est.set_autopilot(3, 2)
     assert est.bank.imu_lead_s == expected_s
     assert est.counters["imu_filter_delay_us"] == round(expected_s * 1e6)
