@@ -251,6 +251,12 @@ class FrameDecoder:
                 return None, "bad_header"
             if msg.get_msgId() == mavlink_dialect.MAVLINK_MSG_ID_UNKNOWN:
                 return None, "unknown_message"
+            if buf[p + 1] > msg.unpacker.size:
+                # a payload longer than the message's longest form (extensions included)
+                # is malformed in MAVLink 1 and 2 alike; pymavlink cuts it silently, so
+                # a CRC that matched by chance (1 in 65,536 per candidate in noise) would
+                # swallow the valid frames it claims
+                return None, "bad_header"
         elif msg is fastframe.BAD_CRC:
             return None, "bad_crc"
         if self._signing_key is not None and not self._signature_ok(buf[p : p + length]):

@@ -92,6 +92,20 @@ def test_valid_datagrams_survive_garbage_datagrams(
     assert stamps[-len(garbage) :] == [100 + i for i in range(len(garbage))]
 
 
+def test_a_frame_longer_than_its_message_is_rejected_not_cut() -> None:
+    """Found by the property below: a MAVLink 1 header in noise claiming 159 bytes for
+    STATUSTEXT (msgid 253, 54 bytes at most) whose CRC matched by chance over the three
+    ATTITUDE frames it covered. pymavlink decodes it by cutting the payload; the decoder
+    rejects it (bad_header) and resyncs one byte on, so the frames are kept."""
+    garbage = [b"\xfe\x9f\x15\xf69", b"t\xaf\xda\xdbt", b"\x11\xd6\x8de\x02OD\xfe\x9f\x15\xf69"]
+    stream = b"".join(g + _att(1000 + i) for i, g in enumerate(garbage)) + bytes(300)
+    dec = FrameDecoder(datagram=False)
+    got = [m for b in stream for m in dec.feed(bytes([b]))]
+    assert [m.time_boot_ms for m in got if m.get_type() == "ATTITUDE"] == [1000, 1001, 1002]
+    assert [m.get_type() for m in got] == ["ATTITUDE"] * 3  # no STATUSTEXT made of them
+    assert dec.counters.counts["bad_header"] >= 1
+
+
 @_SETTINGS
 @given(
     st.lists(st.binary(max_size=120), min_size=1, max_size=6),
