@@ -270,12 +270,14 @@ class DragModelConfig:
 
 
 class _Used(NamedTuple):
-    """θ (rows of floats) and P per body row as the model is used, and whether the rows'
-    (k, q) are shared (``symmetric_xy``, (S1))."""
+    """θ (rows of floats) and P per body row as the model is used, whether the rows'
+    (k, q) are shared (``symmetric_xy``, (S1)), and those rows as fits (for φᵀ P φ:
+    the model's own, or a copy holding the shared θ and P)."""
 
     theta: list[list[float]]
     cov: list[list[list[float]]]
     shared: bool
+    rows: RowFits
 
 
 class PseudoMeasurement(NamedTuple):
@@ -576,12 +578,12 @@ class DragModel:
         sample."""
         lists = self._lists()
         if not self.config.symmetric_xy:
-            return _Used(lists[0], lists[1], False)
+            return _Used(lists[0], lists[1], False, self._rows)
         if self._use_cache is not None and self._use_cache[0] is lists:
             return self._use_cache[1]
         th, P = self._arrays()
         idx = (_K, _Q)
-        used = _Used(lists[0], lists[1], False)
+        used = _Used(lists[0], lists[1], False, self._rows)
         if shared_drag_chi2(th, P, idx) <= self.config.symmetric_gate_chi2:
             # only a row whose own speeds did not vary borrows, and only from a row whose
             # did: a row whose data identify its k keeps its own fit (the symmetry is the
@@ -590,7 +592,8 @@ class DragModel:
             if spread_ok[0] != spread_ok[1]:
                 j = 0 if spread_ok[1] else 1
                 th_s, P_s = share_drag(th, P, idx, rows=(j,))
-                used = _Used(th_s.tolist(), P_s.tolist(), True)
+                th_l, P_l = th_s.tolist(), P_s.tolist()
+                used = _Used(th_l, P_l, True, RowFits(self._rows.n_param, th_l, P_l))
         self._use_cache = (lists, used)
         return used
 
@@ -715,7 +718,7 @@ class DragModel:
             failed: list[str] = []
             rows = self._rows
             s_sum, s2_sum, res_sum = rows.s_sum, rows.s2_sum, rows.res_sum
-            th, P, shared = self._use_lists()
+            th, P, shared, _ = self._use_lists()
             spread2_rows = [s2_sum[i] / n - (s_sum[i] / n) ** 2 for i in range(2)]
             for j in range(2):
                 spread2 = spread2_rows[j]
@@ -756,7 +759,7 @@ class DragModel:
             )
         spread = self.speed_spread_mps
         sig_f = self.sigma_f_mps2
-        th, P, _ = self._use_lists()  # the k the test judged (shared with symmetric_xy)
+        th, P, _, _ = self._use_lists()  # the k the test judged (shared with symmetric_xy)
         k = np.array([th[0][_K], th[1][_K]])
         z = k / np.sqrt([P[0][_K][_K], P[1][_K][_K]])
         why: list[str] = []
@@ -848,7 +851,7 @@ class DragModel:
             scale = math.sqrt(max(1.0, nees))
         ok, _ = self._row_tests()
         sig_f = self._sigma_f_list()
-        th_rows, P_rows, shared = self._use_lists()
+        th_rows, _, shared, used_rows = self._use_lists()
         known = [i for i in range(3) if i != lost_axis]
         parts: list[tuple[float, float, float]] = []
         for j in range(2):
@@ -881,17 +884,7 @@ class DragModel:
             phi: tuple[float, ...] = (1.0, -s_j, r[0], r[1], -s_j * abs(s_j))
             if rho is not None:
                 phi = (*phi, rho[j])
-            if shared:  # φᵀ P_j φ with P_j after (S1)
-                Pj = P_rows[j]
-                var_model = (
-                    sum(
-                        phi[a] * sum(Pj[a][b] * phi[b] for b in range(len(phi)))
-                        for a in range(len(phi))
-                    )
-                    / g2
-                )
-            else:
-                var_model = self._rows.quad_form(j, phi) / g2  # φᵀ P_j φ
+            var_model = used_rows.quad_form(j, phi) / g2  # φᵀ P_j φ (after (S1) if shared)
             var_white = (
                 sig_f[j] ** 2 + sum((slope * r[i] * sigma_v_known_mps) ** 2 for i in known)
             ) / g2
