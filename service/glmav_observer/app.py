@@ -521,22 +521,18 @@ class Service:
                 continue
             for fd in ready:
                 lid, lk = by_fd[fd]
-                # drain the socket, but at most DRAIN_MAX_READS reads a turn and never past
-                # a stop request: a flood must not delay shutdown or the rate checks
                 if lk.datagram:
+                    # drain the socket, but at most DRAIN_MAX_READS reads a turn and never
+                    # past a stop request: a flood must not delay shutdown or rate checks
                     self._drain_datagrams(lid, lk, stop_event, clock)
                     continue
-                for _ in range(DRAIN_MAX_READS):
-                    if stop_event.is_set():
-                        break
-                    data = lk.read()
-                    if not data:
-                        break
+                if stop_event.is_set():
+                    continue
+                data = lk.read()  # a stream: one read takes what is buffered
+                if data:
                     self.current_peer = lk.peer
                     self.current_arrival_s = lk.arrival_s
-                    self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
-                    if not lk.datagram:
-                        break
+                    self.feed_bytes(lid, data, clock(), datagram=False)
             now = clock()
             if now >= next_rate_check or self._rates_now:
                 self._rates_now = False
@@ -598,7 +594,8 @@ class Service:
                 if not data:
                     break
                 self.current_peer = lk.peer
-                self.feed_bytes(lid, data, clock(), datagram=lk.datagram)
+                self.current_arrival_s = lk.arrival_s
+                self.feed_bytes(lid, data, clock(), datagram=False)
 
     # ------------------------------------------------------------------ results
     def summary(self) -> ServiceSummary:
