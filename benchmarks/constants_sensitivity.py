@@ -58,6 +58,7 @@ CONSTANTS: tuple[tuple[str, str, int | None], ...] = (
     ("AidedAxisConfig", "stale_nees_max", None),
     ("AidedAxisConfig", "scatter_max", None),
     ("aiding", "RETURN_TIME_S", None),
+    ("EstimatorConfig", "gamma_full_max", None),
 )
 
 
@@ -80,7 +81,8 @@ def varied(cls: str, name: str, element: int | None, factor: float) -> Iterator[
     """Inside: the service built with the constant at ``factor`` of its value; yields the
     ServiceConfig to replay with. FDI settings go through the configuration; the drag
     model's and the aided axis's (not configurable) by wrapping their constructors in
-    ``glmav_observer.estimation.aiding``, the module constant by setting it."""
+    ``glmav_observer.estimation.aiding``, the module constant by setting it, an
+    ``[estimation]`` setting through the configuration."""
     from glmav_observer import config as config_mod
     from glmav_observer.estimation import aiding
     from glmav_observer.estimation.aero import AidedAxisConfig, DragModelConfig
@@ -95,6 +97,11 @@ def varied(cls: str, name: str, element: int | None, factor: float) -> Iterator[
             imu = dataclasses.replace(fdi.imu, **{name: _scaled(getattr(fdi.imu, name), factor)})
             fdi = dataclasses.replace(fdi, imu=imu)
         yield dataclasses.replace(svc, estimation=dataclasses.replace(est, fdi=fdi))
+        return
+    if cls == "EstimatorConfig":
+        yield dataclasses.replace(
+            svc, estimation=dataclasses.replace(est, **{name: _scaled(getattr(est, name), factor)})
+        )
         return
     if cls == "aiding":
         old = getattr(aiding, name)
@@ -212,10 +219,12 @@ def _value(cls: str, name: str, element: int | None, factor: float) -> Any:
     from glmav_observer.estimation.aero import AidedAxisConfig, DragModelConfig
     from glmav_observer.estimation.fdi_types import FdiConfig
     from glmav_observer.estimation.imu_monitor import ImuMonitorConfig
+    from glmav_observer.estimation.vehicle import EstimatorConfig
 
     if cls == "aiding":
         return _scaled(getattr(aiding, name), factor)
     default = {
+        "EstimatorConfig": EstimatorConfig(),
         "FdiConfig": FdiConfig(),
         "ImuMonitorConfig": ImuMonitorConfig(),
         "DragModelConfig": DragModelConfig(),

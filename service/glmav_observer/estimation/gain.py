@@ -43,8 +43,8 @@ class GainConfig:
     )  # fmt: skip
     max_step_ratio: float = const(
         1.5, unit="", source="requirement",
-        reason="γ changes by at most ×/÷ this per update: from gamma_full_min to "
-        "gamma_full_max (×5) in 4 updates (20 s), so one noisy update cannot jump the gain",
+        reason="γ changes by at most ×/÷ this per update: from the default 12 to "
+        "gamma_full_max (40) in 3 updates (15 s), so one noisy update cannot jump the gain",
     )  # fmt: skip
     min_change_fraction: float = const(
         0.02, unit="", source="statistic",

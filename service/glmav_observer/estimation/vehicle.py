@@ -140,7 +140,7 @@ class EstimatorConfig:
     metrics_skip_s: float = 3.0
     adapt_gamma_full: bool = True
     gamma_full_min: float = 4.0
-    gamma_full_max: float = 20.0
+    gamma_full_max: float = 40.0
     #: learn the drag model while healthy and publish the ``aided`` estimate of a lost axis
     aero_aiding: bool = True
     #: while the aiding runs, the ``active`` estimate's lost axis is the ``aided`` one
