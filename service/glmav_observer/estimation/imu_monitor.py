@@ -31,12 +31,10 @@ is the named IMU's bias (f_k − f_true), or f_2 − f_1 when none is named.
 
 from __future__ import annotations
 
-import math
 import statistics
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from glmav_observer.estimation.imu_window import mean_and_sigma
+from glmav_observer.estimation.imu_window import PairWindow, deviation_test
 from glmav_observer.estimation.reasons import const
 
 Vec3 = tuple[float, float, float]
@@ -112,20 +110,6 @@ class ImuEvent:
 
 
 @dataclass
-class _Pair:
-    """The difference of one secondary instance to IMU 1 over the window."""
-
-    window: deque[tuple[float, Vec3]] = field(default_factory=deque)
-    baseline: list[float] | None = None
-    t_last_s: float = -math.inf
-    f_last: Vec3 = (0.0, 0.0, 0.0)
-
-    def mean_and_sigma(self) -> tuple[list[float], list[float], int]:
-        """(mean, σ of the mean, n) of the window's differences (compiled: imu_window)."""
-        return mean_and_sigma(self.window)
-
-
-@dataclass
 class _Fault:
     instance: int | None
     t_onset_s: float
@@ -143,7 +127,8 @@ class ImuConsistency:
 
     def __init__(self, cfg: ImuMonitorConfig | None = None) -> None:
         self.cfg = cfg or ImuMonitorConfig()
-        self._pairs: dict[int, _Pair] = {}
+        #: per secondary instance, its differences to IMU 1 (compiled: imu_window)
+        self._pairs: dict[int, PairWindow] = {}
         self._fault: _Fault | None = None
         self.events: list[ImuEvent] = []
         #: IMU 1's estimated bias while it is the faulty one (subtracted from its samples)
@@ -160,8 +145,10 @@ class ImuConsistency:
         accelerometer reads gravity)."""
         if f_body_mps2 == (0.0, 0.0, 0.0):
             return
-        p = self._pairs.setdefault(instance, _Pair())
-        p.t_last_s, p.f_last = t_s, f_body_mps2
+        p = self._pairs.get(instance)
+        if p is None:
+            p = self._pairs[instance] = PairWindow()
+        p.note(t_s, f_body_mps2)
 
     def correction(self) -> Vec3 | None:
         """IMU 1's bias to subtract from its samples, or None."""
@@ -191,23 +178,11 @@ class ImuConsistency:
         cfg = self.cfg
         dev: dict[int, tuple[list[float], list[float]]] = {}
         for k, p in self._pairs.items():
-            if t_s - p.t_last_s > cfg.max_age_s:
-                p.window.clear()
-                continue
-            d = (
-                p.f_last[0] - f_body_mps2[0],
-                p.f_last[1] - f_body_mps2[1],
-                p.f_last[2] - f_body_mps2[2],
-            )
-            p.window.append((t_s, d))
-            while p.window and p.window[0][0] <= t_s - cfg.window_s:
-                p.window.popleft()
-            mean, sig, n = p.mean_and_sigma()
-            if n < cfg.min_samples or t_s - p.window[0][0] < cfg.min_fill * cfg.window_s:
-                continue  # (a window half filled: after a start or a gap)
-            if p.baseline is None:
-                p.baseline = list(mean)
-            dev[k] = ([m - b for m, b in zip(mean, p.baseline, strict=True)], sig)
+            # None: a stale secondary (its window emptied) or a window half filled (after
+            # a start or a gap)
+            r = p.step(t_s, f_body_mps2, cfg.window_s, cfg.max_age_s, cfg.min_samples, cfg.min_fill)
+            if r is not None:
+                dev[k] = r
         if not dev:
             return []
         blamed, bias, sigma, exceeds, quiet = self._blame(dev)
@@ -215,24 +190,21 @@ class ImuConsistency:
             self._learn_baselines(dev)
         return self._track(t_s, blamed=blamed, bias=bias, sigma=sigma, exceeds=exceeds, quiet=quiet)
 
-    def _threshold(self, sig: list[float]) -> list[float]:
-        return [max(self.cfg.floor_mps2, self.cfg.k_sigma * s) for s in sig]
-
     def _blame(
         self, dev: dict[int, tuple[list[float], list[float]]]
     ) -> tuple[int | None, Vec3, Vec3, bool, bool]:
         """(instance blamed, its bias, σ, a deviation exceeds the threshold, every
         deviation below half of it). The deviation of IMU k from IMU 1 is dev[k]; of IMU
-        j from the median of all, dev[j] − median (IMU 1's own: 0 − median)."""
-        axes = range(3)
-        thr = self._threshold([max(s[1][a] for s in dev.values()) for a in axes])
-        exceeds = any(abs(m[a]) > thr[a] for m, _ in dev.values() for a in axes)
-        end = self.cfg.end_fraction
-        quiet = all(abs(m[a]) < end * thr[a] for m, _ in dev.values() for a in axes)
-        sig = max(dev.values(), key=lambda v: max(v[1]))[1]
+        j from the median of all, dev[j] − median (IMU 1's own: 0 − median). The
+        threshold and its tests are compiled (:func:`.imu_window.deviation_test`)."""
+        cfg = self.cfg
+        thr, exceeds, quiet, sig = deviation_test(
+            list(dev.values()), cfg.floor_mps2, cfg.k_sigma, cfg.end_fraction
+        )
         if len(dev) == 1:
             (m, _) = next(iter(dev.values()))
             return None, (m[0], m[1], m[2]), (sig[0], sig[1], sig[2]), exceeds, quiet
+        axes = range(3)
         ids = [1, *dev]
         rel = {1: [0.0, 0.0, 0.0], **{k: v[0] for k, v in dev.items()}}
         med = [statistics.median(rel[i][a] for i in ids) for a in axes]
@@ -246,15 +218,7 @@ class ImuConsistency:
         """The pairs' baselines follow their means while every IMU agrees (τ
         ``baseline_tau_s``, one step per sample)."""
         for k, (m, _) in dev.items():
-            p = self._pairs[k]
-            if p.baseline is None or not p.window:
-                continue
-            g = (
-                (p.window[-1][0] - p.window[-2][0]) / self.cfg.baseline_tau_s
-                if len(p.window) >= 2
-                else 0.0
-            )
-            p.baseline = [b + g * x for b, x in zip(p.baseline, m, strict=True)]
+            self._pairs[k].learn_baseline(m, self.cfg.baseline_tau_s)
 
     def _track(
         self,
@@ -311,12 +275,5 @@ class ImuConsistency:
         baseline, on any pair and axis (the window's start if none)."""
         t0 = t_s
         for p in self._pairs.values():
-            if not p.window or p.baseline is None:
-                continue
-            for t, d in p.window:
-                if any(
-                    abs(x - b) > self.cfg.floor_mps2 for x, b in zip(d, p.baseline, strict=True)
-                ):
-                    t0 = min(t0, t)
-                    break
+            t0 = min(t0, p.onset(self.cfg.floor_mps2))
         return t0
