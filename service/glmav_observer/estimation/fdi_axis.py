@@ -99,8 +99,10 @@ class AxisMonitor:
     _rearm_rows: int = 0
     _scale: float = 0.0  # s_j of the last test
     #: running mean of squared successive residual differences: 2 σ² of the measurement's
-    #: white noise (plus the IMU's over one interval), for the gain of ``full``
+    #: white noise (plus the IMU's over one interval), for the gain of ``full``; exact over
+    #: its first ``scale_samples`` (``n_diff`` of them so far), then a running mean
     var_diff_mps2: float = 0.0
+    n_diff: int = 0
     _r_prev: float = math.nan
     #: the measurement's own second differences y_k − 2y_(k−1) + y_(k−2): their recent
     #: squares and the running mean of those squares while the axis is healthy (white noise
@@ -280,8 +282,13 @@ class AxisMonitor:
             self._scale = math.hypot(self.sigma_r_mps, sigma_pred)
             if math.isfinite(self._r_prev) and self.state is OK:
                 d2 = (r - self._r_prev) ** 2
-                if self.var_diff_mps2 == 0.0:
-                    self.var_diff_mps2 = d2
+                self.n_diff += 1
+                if self.n_diff <= cfg.scale_samples:
+                    # the exact mean of the first ones: winsorised against an estimate
+                    # of a few samples (one χ²₁ draw can be 1e-3 of its mean) it would
+                    # grow by at most 6 % a sample and understate the noise for ~400
+                    # samples; unwinsorised, an outlier can only overstate it (a lower γ)
+                    self.var_diff_mps2 += (d2 - self.var_diff_mps2) / self.n_diff
                 else:
                     cap = self._winsor_sq * self.var_diff_mps2
                     self.var_diff_mps2 += (min(d2, cap) - self.var_diff_mps2) / cfg.scale_samples

@@ -3,8 +3,10 @@
 Adaptation (``adapt_gamma_full``). Every ``update_samples`` (:class:`GainConfig`) measurements, while
 every axis is healthy and armed, γ of ``full`` is set from the noise this vehicle sends
 (:func:`~glmav_observer.estimation.observer.gamma_full_optimal`): the measurement's white
-noise from successive residual differences, E[Δr²] = 2 σ_y² + q Δt_y; the IMU's (q) from
-the despiker; the bias from the fit (at least ``bias_floor_mps2``). A change is limited to ×/÷
+noise from successive residual differences, E[Δr²] = 2 σ_y² + q Δt_y, once every axis has
+``scale_samples`` of them (``AxisMonitor.var_diff_mps2``); the IMU's (q) from the
+despiker; the bias the bank still integrates (:func:`bias_left_mps2`, at least
+``bias_floor_mps2``). A change is limited to ×/÷
 ``max_step_ratio`` per update, and one below ``min_change_fraction`` is not made
 (:class:`GainConfig`).
 
@@ -21,6 +23,7 @@ from dataclasses import dataclass
 from glmav_observer.estimation.bank import ObserverBank
 from glmav_observer.estimation.despike import Despiker
 from glmav_observer.estimation.fdi import FaultDetector
+from glmav_observer.estimation.fdi_reference import Reference
 from glmav_observer.estimation.observer import gamma_full_optimal
 from glmav_observer.estimation.reasons import const
 
@@ -64,9 +67,17 @@ class FullGain:
     """The gain policy of ``full`` for one vehicle (module docstring)."""
 
     def __init__(
-        self, adapt: bool, gamma_min: float, gamma_max: float, cfg: GainConfig | None = None
+        self,
+        adapt: bool,
+        gamma_min: float,
+        gamma_max: float,
+        cfg: GainConfig | None = None,
+        *,
+        compensate_bias: bool = True,
     ) -> None:
         self.adapt = adapt
+        #: the bank is fed the IMU less the fit's observed bias (selection.bank_bias)
+        self.compensate_bias = compensate_bias
         self.gamma_min = gamma_min
         self.gamma_max = gamma_max
         self.cfg = cfg or GainConfig()
@@ -104,12 +115,12 @@ class FullGain:
         axes = fdi.axes
         if fdi.faulty_axes() or not fdi.armed() or y_interval_s <= 0.0 or self._saved is not None:
             return False
-        if imu_hz <= 0.0 or any(a.var_diff_mps2 <= 0.0 for a in axes):
-            return False
+        if imu_hz <= 0.0 or any(a.n_diff < a.cfg.scale_samples for a in axes):
+            return False  # (the noise estimate has not its full sample yet)
         q = despike.noise_var_mps2() / imu_hz
         # E[Δr²] = 2 σ_y² + q Δt_y (the IMU's white noise over one interval)
         var_y = max(min(a.var_diff_mps2 for a in axes) / 2.0 - q * y_interval_s / 2.0, 1e-8)
-        b = max(math.sqrt(sum(x * x for x in fdi.fit.bias_body_mps2)), cfg.bias_floor_mps2)
+        b = max(bias_left_mps2(fdi.fit.ref, self.compensate_bias), cfg.bias_floor_mps2)
         target = gamma_full_optimal(
             math.sqrt(var_y), 1.0 / y_interval_s, q, b, self.gamma_min, self.gamma_max
         )
@@ -120,3 +131,20 @@ class FullGain:
             return False
         bank.set_gamma("full", new)
         return True
+
+
+def bias_left_mps2(ref: Reference | None, compensated: bool) -> float:
+    """The accelerometer bias ``full`` still integrates (m/s²), the b of J(γ): with the
+    bias compensated (``compensate_accel_bias``: the bank is fed f − b̂ of the components
+    the fit observed, ``selection.bank_bias``) what the fit did not observe plus the σ of
+    its estimate, √Σ_k((b̂_k − b̂_obs,k)² + σ_k²); without, the whole fitted bias |b̂|;
+    0 without a fit."""
+    if ref is None:
+        return 0.0
+    if not compensated:
+        return math.sqrt(sum(x * x for x in ref.bias_body_mps2))
+    total = 0.0
+    for k in (3, 4, 5):
+        left = ref.theta[k] - ref.observed(k)
+        total += left * left + max(float(ref.cov[k, k]), 0.0)
+    return math.sqrt(total)

@@ -242,7 +242,10 @@ class VehicleEstimator:
         self.inputs = HeldInputs(cfg.g_mps2)
         self.streams = StreamTiming(cfg.max_gap_s, cfg.fdi.missing_timeout_s)
         self.sel = ActiveSelection(cfg.compensate_accel_bias, cfg.handover_contamination_mps)
-        self.gain = FullGain(cfg.adapt_gamma_full, cfg.gamma_full_min, cfg.gamma_full_max)
+        self.gain = FullGain(
+            cfg.adapt_gamma_full, cfg.gamma_full_min, cfg.gamma_full_max,
+            compensate_bias=cfg.compensate_accel_bias,
+        )  # fmt: skip
         self.out.next_health_s = None
         if self.aiding is not None:
             self.aiding.restart()
