@@ -51,6 +51,7 @@ SENSITIVITY = REPO / "benchmarks" / "results" / "constants_sensitivity.json"
 TOML_SECTIONS = {
     "FdiConfig": "fdi",
     "ImuMonitorConfig": "fdi.imu",
+    "GpsBridgeConfig": "estimation.gps_bridge",
     "DespikeConfig": "fdi.despike",
     "EstimatorConfig": "estimation",
 }

@@ -23,6 +23,7 @@ from glmav_observer.configurations import DEFAULT_GAMMA
 from glmav_observer.estimation import EForm
 from glmav_observer.estimation.aero.control import ControlMapping
 from glmav_observer.estimation.fdi_types import DespikeConfig, FdiConfig
+from glmav_observer.estimation.gps_bridge import GpsBridgeConfig
 from glmav_observer.estimation.imu_monitor import ImuMonitorConfig
 from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.ingest.clock import ClockConfig
@@ -204,6 +205,23 @@ _BOUNDS: dict[str, Check] = {
     "dcx_rad_per_us": within(-0.1, 0.1),
     "dcy_rad_per_us": within(-0.1, 0.1),
     "max_age_s": within(0.0, 10.0, lo_open=True),
+    "readmit_follow_s": within(0.0, 60.0),
+    # [estimation.gps_bridge] (estimation/gps_bridge.py)
+    "sigma_v_mps": within(0.0, 10.0, lo_open=True),
+    "lag_prior_s": within(0.0, 2.0),
+    "lag_max_s": within(0.0, 2.0, lo_open=True),
+    "lag_step_s": within(0.001, 0.5),
+    "learn_interval_s": within(0.0, 3600.0),
+    "lag_memory_s": within(0.0, 86_400.0, lo_open=True),
+    "lag_min_samples": within(1, 100_000),
+    "excite_sigma": within(0.0, 1000.0),
+    "trust_sigma": within(0.0, 1000.0, lo_open=True),
+    "max_rejects": within(1, 10_000),
+    "start_sigma": within(0.0, 1000.0, lo_open=True),
+    # (sigma_floor_mps: as [fdi]'s)
+    "blend_s": within(0.0, 600.0),
+    "max_s": within(0.0, 3600.0, lo_open=True),
+    "gps_timeout_s": within(0.0, 60.0, lo_open=True),
     # [fdi]
     "sigma_meas_mps": within(0.0, 10.0, lo_open=True),
     "vet_delay_s": within(0.0, 60.0, lo_open=True),
@@ -397,6 +415,14 @@ def parse_config(data: Mapping[str, Any], file: str = "<config>") -> ServiceConf
     ctl_fields = _fields_from(ctl_r, ControlMapping())
     ctl_r.done()
     est_fields["aero_control"] = ControlMapping(**ctl_fields) if ctl_on else None
+    br_r = est.sub("gps_bridge")
+    bridge = GpsBridgeConfig(**_fields_from(br_r, GpsBridgeConfig()))
+    if bridge.lag_prior_s > bridge.lag_max_s:
+        raise ConfigError(
+            file, "estimation.gps_bridge.lag_prior_s", "must be <= lag_max_s (the lag's grid)"
+        )
+    br_r.done()
+    est_fields["gps_bridge"] = bridge
     est.done()
     # [fdi]
     fdi_r = root.sub("fdi")

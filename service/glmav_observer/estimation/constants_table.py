@@ -37,6 +37,7 @@ CLASSES: tuple[tuple[str, str], ...] = (
     ("DragModelConfig", f"{_PKG}.aero.model"),
     ("AidedAxisConfig", f"{_PKG}.aero.aided"),
     ("DriftRateConfig", f"{_PKG}.aero.drift_rate"),
+    ("GpsBridgeConfig", f"{_PKG}.gps_bridge"),
 )
 
 
@@ -85,6 +86,11 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                              "(east during the loss: 0.0482 m/s filtered, 0.0411 followed; "
                              "VehicleEstimator._follow_unaided) and by the argument that the "
                              "autopilot dead-reckons from its full-rate IMU"),
+        "readmit_follow_s": _r("s", "physics", "`active` still follows the autopilot's "
+                               "velocity this long after it is aided again: its estimator "
+                               "snaps back to its sensor then (ArduPilot: 0.37 m/s in one "
+                               "sample on b_quad_gps_off), a step `full`'s filter smears over "
+                               "1/γ; 1 s = 4/γ at gamma_full_min"),
         "handover_contamination_mps": _r("m/s", "statistic", "at hand-over the FDI's dead "
                                          "reckoning replaces `full` if they differ by more: "
                                          "20σ of the hand-over (0.05 m/s), so only a "

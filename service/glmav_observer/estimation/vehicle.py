@@ -18,6 +18,7 @@ Each part has one job, in its own module:
 ``outputs``         the records, their sequence numbers and the health pacing
 ``seed``            the state a taken-over vehicle continues from
 ``aiding``          the lost axis aided by the learnt drag model (the ``aided`` estimate)
+``gps_bridge``      after a GPS loss, the GPS's own velocity while the autopilot's is off
 ==================  ===================================================================
 
 The step from a sample (:meth:`VehicleEstimator.on_sample`):
@@ -65,6 +66,7 @@ from glmav_observer.estimation.fdi import FaultDetector
 from glmav_observer.estimation.fdi_reference import LAG, sigma_dead_reckoning_mps
 from glmav_observer.estimation.fdi_types import FdiConfig
 from glmav_observer.estimation.gain import FullGain
+from glmav_observer.estimation.gps_bridge import GpsBridge, GpsBridgeConfig
 from glmav_observer.estimation.imu_filter import accel_filter_delay_s
 from glmav_observer.estimation.imu_monitor import ImuConsistency, ImuEvent
 from glmav_observer.estimation.inputs import HeldInputs
@@ -136,6 +138,12 @@ class EstimatorConfig:
     #: while the autopilot says an axis is unaided (GPS lost), ``active`` follows its
     #: velocity there (``VehicleEstimator._follow_unaided``); False: filtered as usual
     follow_unaided: bool = True
+    #: ... and for this long after it is aided again, s: its estimator snaps back to its
+    #: sensor then (ArduPilot resets its velocity to the returned GPS's: 0.37 m/s in one
+    #: sample on b_quad_gps_off), a step ``full``'s filter would smear over 1/γ (25-250
+    #: ms); 1 s = 4/γ at the lowest γ (``gamma_full_min``), when any step present as the
+    #: flags clear has decayed to 2 % in ``full`` too
+    readmit_follow_s: float = 1.0
     handover_contamination_mps: float = 1.0
     metrics_skip_s: float = 3.0
     adapt_gamma_full: bool = True
@@ -158,6 +166,9 @@ class EstimatorConfig:
     #: ``DragModelConfig.symmetric_xy``, a body row whose speed barely varied borrows the
     #: other row's k and q
     aero_symmetric_xy: bool = False
+    #: after a GPS loss, the GPS's own velocity while the autopilot's re-converges
+    #: (:mod:`.gps_bridge`)
+    gps_bridge: GpsBridgeConfig = field(default_factory=GpsBridgeConfig)
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
@@ -213,6 +224,8 @@ class VehicleEstimator:
         self.imus = ImuConsistency(config.fdi.imu) if config.fdi.imu_monitor else None
         #: (t, GPS v n e, A n e) at the first GPS sample after a two-IMU fault's onset
         self._imu_anchor: tuple[float, tuple[float, float], tuple[float, float]] | None = None
+        #: the GPS's velocity after a GPS loss (its lag learnt: a link fact, kept)
+        self.bridge = GpsBridge(config.gps_bridge)
         self._seed: EstimatorSeed | None = None
         #: vehicle s between a seed's state and the sample it was applied at (None: none)
         self.seed_age_s: float | None = None
@@ -254,6 +267,11 @@ class VehicleEstimator:
         self.t_first_s: float | None = None
         self._t_imu_s: float | None = None  # the last IMU sample's time (trapezoid_imu)
         self._use: list[bool] = [False, False, False]
+        self.bridge.stop()
+        #: per NED axis, the vehicle time until which ``active`` still follows the
+        #: autopilot's velocity after it was aided again (``readmit_follow_s``)
+        self._follow_until_s: list[float] = [-math.inf] * 3
+        self._follow_end_s = -math.inf  # the latest of them
         self._last_residual: list[float] = [math.nan] * 3
         self._last_ratio: list[float] = [0.0, 0.0, 0.0]
 
@@ -586,7 +604,18 @@ class VehicleEstimator:
         verdicts = self.fdi.update(t, s.v_ned_mps, inputs.a_int, ints, imu_hz)
         self.streams.measurement(t)
         f_mean = inputs.f_mean_since_measurement()
-        inputs.hold_measurement(self._lag_compensated(s.v_ned_mps, ints[2]))
+        y = self._lag_compensated(s.v_ned_mps, ints[2])
+        bridge = self.bridge
+        bridge.note(t, inputs.a_int, ints[0], self.fdi.fit.bias_body_mps2)
+        if bridge.active:
+            bridging = bridge.bridging
+            y_ne = bridge.measurement(t, (y[0], y[1]), not self.drift.unaided()[0])
+            if y_ne is not None:
+                y[0], y[1] = y_ne
+                self.counters["gps_bridge_measurements"] += 1
+            if bridging and not bridge.bridging:
+                self._apply_unaided(t)  # the autopilot agrees again: its axes are tested
+        inputs.hold_measurement(y)
         self._use = [v.use for v in verdicts]
         self._last_residual = [v.residual_mps for v in verdicts]
         self._last_ratio = [v.test_ratio for v in verdicts]
@@ -642,11 +671,55 @@ class VehicleEstimator:
         drift = self.drift
         if s.gps_v_ne_mps is not None and self.imus is not None and self.t_bank_s is not None:
             self._resolve_imu(s.t_boot_s, s.gps_v_ne_mps)
+        if s.source == "GPS_RAW_INT" and self.t_bank_s is not None:
+            self._gps_bridge(s)
         if s.source == "EKF_STATUS_REPORT":
             drift.on_ekf(s.t_boot_s, s.horizontal_aided, s.vertical_aided)
         else:
             drift.on_gps(s.t_boot_s, s.horizontal_aided)
-        self._apply_unaided()
+        self._apply_unaided(s.t_boot_s)
+
+    def _gps_bridge(self, s: AidingSample) -> None:
+        """The GPS's velocity for :mod:`.gps_bridge`, before the drift flags take this
+        sample: it learns the GPS's lag while all is well (once per ``learn_interval_s``),
+        and bridges the autopilot's re-convergence when the fix comes back after a loss."""
+        bridge = self.bridge
+        t = self.t_bank_s
+        assert t is not None
+        v = s.gps_v_ne_mps
+        if v is None:
+            bridge.gps_lost(t)
+            return
+        drift = self.drift
+        use = bridge.active or (drift.gps_lost and bridge.cfg.enabled)
+        learn = (
+            not use
+            and bridge.learn_due(t)
+            and drift.unaided_since_s == _NONE3
+            and not self.fdi.faulty_axes()
+        )
+        if not (use or learn):
+            return
+        inputs = self.inputs
+        bridge.note(t, inputs.a_int, inputs.ints()[0], self.fdi.fit.bias_body_mps2)
+        _, ned_l = self.bank.estimates_lists()
+        est = ned_l[config_index("full")]
+        if learn:
+            bridge.learn(t, v, (est[0], est[1]))
+            return
+        since = drift.unaided_since_s[0]
+        sigma_est = (
+            self.cfg.fdi.sigma_handover_mps
+            if since is None
+            else sigma_dead_reckoning_mps(self.cfg.fdi, t - since)
+        )
+        started = bridge.starts
+        bridge.on_gps(
+            t, v, sigma_gps_mps=s.gps_v_sigma_mps, start=drift.gps_lost,
+            v_est=(est[0], est[1]), sigma_est_mps=sigma_est,
+        )  # fmt: skip
+        if bridge.starts != started:
+            self.counters["gps_bridge_starts"] += 1
 
     def _resolve_imu(self, t: float, gps_v_ne_mps: tuple[float, float]) -> None:
         """Two IMUs disagree (difference D = f_2 − f_1): the GPS's own ground velocity
@@ -694,14 +767,23 @@ class VehicleEstimator:
         self.counters[f"imu_{kind}"] += 1
         self.out.decision()
 
-    def _apply_unaided(self) -> None:
+    def _apply_unaided(self, t: float) -> None:
+        """The FDI's untested axes: the autopilot's unaided ones (:mod:`.drift`), and n
+        and e while the GPS bridge runs (the autopilot's velocity has not re-converged:
+        a late reset would look like a bias fault to a reference that warmed up before
+        it)."""
         unaided = self.drift.unaided()
+        if self.bridge.bridging:
+            unaided[0] = unaided[1] = True
         fdi = self.fdi
         if unaided == fdi.unaided:
             return
         for j in range(3):
             if unaided[j] and not fdi.unaided[j]:
                 self.counters[f"unaided_{NED_AXES[j]}"] += 1
+            elif fdi.unaided[j] and not unaided[j]:
+                self._follow_until_s[j] = t + self.cfg.readmit_follow_s
+                self._follow_end_s = max(self._follow_end_s, self._follow_until_s[j])
         fdi.set_unaided(unaided)
         self.out.decision()  # published at once, whatever the records' rates
 
@@ -814,8 +896,8 @@ class VehicleEstimator:
                 # the dead reckoning (never aided, or set back): its σ, as without the
                 # aiding (bit for bit when nothing returns), and the returning part
                 a_sigma += abs(off)
-        if True in self.fdi.unaided and self.cfg.follow_unaided:
-            a_ned = self._follow_unaided(a_ned, j)
+        if self.cfg.follow_unaided and (True in self.fdi.unaided or t < self._follow_end_s):
+            a_ned = self._follow_unaided(a_ned, j, t)
         self.out.velocity(
             t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body, a_health,
             self._drift_sigma(t),
@@ -829,18 +911,21 @@ class VehicleEstimator:
         if settled is not None:
             self.switches[-1] = settled
 
-    def _follow_unaided(self, a_ned: Vec3, lost_idx: int | None) -> Vec3:
-        """While the autopilot's velocity is unaided on an axis (GPS lost), ``active``
-        on it is the autopilot's velocity carried to now by the IMU (the held measurement,
-        propagated: ``HeldInputs.y_for_step``): the autopilot dead-reckons from its
-        full-rate IMU, and filtering it with the decimated IMU here only adds lag (on
-        ``b_quad_gps_off`` east during the loss: 0.0482 m/s filtered, 0.0411 followed,
-        the autopilot's 0.0407). An axis the active configuration has lost keeps its own."""
+    def _follow_unaided(self, a_ned: Vec3, lost_idx: int | None, t: float) -> Vec3:
+        """While the autopilot's velocity is unaided on an axis (GPS lost), and for
+        ``readmit_follow_s`` after it is aided again, ``active`` on it is the autopilot's
+        velocity carried to now by the IMU (the held measurement, propagated:
+        ``HeldInputs.y_for_step``; after a GPS loss the GPS's own velocity where
+        :mod:`.gps_bridge` runs): the autopilot dead-reckons from its full-rate IMU, and
+        filtering it with the decimated IMU here only adds lag (on ``b_quad_gps_off``
+        east during the loss: 0.0482 m/s filtered, 0.0411 followed, the autopilot's
+        0.0407). An axis the active configuration has lost keeps its own."""
         y = self.inputs.y_for_step(self.fdi.fit.bias_body_mps2, True)
         un = self.fdi.unaided
+        until = self._follow_until_s
         v = [a_ned[0], a_ned[1], a_ned[2]]
         for k in range(3):
-            if un[k] and k != lost_idx and math.isfinite(y[k]):
+            if (un[k] or t < until[k]) and k != lost_idx and math.isfinite(y[k]):
                 v[k] = y[k]
         return (v[0], v[1], v[2])
 

@@ -145,6 +145,11 @@ def to_sample(msg: Any, t_boot_s: float, raw_scale: RawImuScale) -> Sample:
         if ok and UINT16_UNKNOWN not in {vel_cmps, cog_cdeg}:
             speed_mps, course_rad = vel_cmps * 0.01, math.radians(cog_cdeg * 0.01)
             v_ne = (speed_mps * math.cos(course_rad), speed_mps * math.sin(course_rad))
+        # vel_acc (mm/s; MAVLink 2 extension, 0 or absent: unknown)
+        vel_acc_mmps = int(getattr(msg, "vel_acc", 0) or 0)
+        sigma = vel_acc_mmps * 1e-3 if v_ne is not None and vel_acc_mmps > 0 else None
         # the GPS says nothing about the vertical velocity an autopilot may take from a baro
-        return AidingSample(sysid, t_boot_s, name, ok, None, "" if ok else f"gps_fix_{fix}", v_ne)
+        return AidingSample(
+            sysid, t_boot_s, name, ok, None, "" if ok else f"gps_fix_{fix}", v_ne, sigma
+        )
     raise ConversionError("unknown_message", f"{name} is not a sample message")

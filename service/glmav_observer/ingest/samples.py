@@ -81,6 +81,8 @@ class AidingSample:
     #: GPS_RAW_INT's ground velocity (north, east; m/s) with a 3D fix: a velocity no IMU
     #: of the vehicle touched (``VehicleEstimator._resolve_imu``); None otherwise
     gps_v_ne_mps: tuple[float, float] | None = None
+    #: its 1σ per axis from the receiver (GPS_RAW_INT ``vel_acc``), m/s; None: not given
+    gps_v_sigma_mps: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,6 +20,8 @@ import pytest
 
 from glmav_observer.app import Service
 from glmav_observer.config import ServiceConfig
+from glmav_observer.estimation.gps_bridge import GpsBridgeConfig
+from glmav_observer.estimation.vehicle import EstimatorConfig
 from glmav_observer.evaluation import interpolate_truth
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
 from glmav_observer.publish.rerun import TIMELINE, read_recording
@@ -35,9 +37,10 @@ def _messages(name: str) -> list[tuple[Any, float]]:
     return [(r.msg, r.t_host_us * 1e-6) for r in iter_tlog(data, FrameCounters())]
 
 
-def _replay(messages: list[tuple[Any, float]]) -> list[Record]:
+def _replay(messages: list[tuple[Any, float]], bridge: bool = True) -> list[Record]:
     sink = MemorySink()
-    service = Service(ServiceConfig(request_rates=False), [sink])
+    est = EstimatorConfig(gps_bridge=GpsBridgeConfig(enabled=bridge))
+    service = Service(ServiceConfig(request_rates=False, estimation=est), [sink])
     for msg, t in messages:
         service.feed_message(msg, t, "log")
     service.close()
@@ -126,14 +129,102 @@ def test_gps_loss_estimate_is_as_good_as_the_autopilots(
         ours = _rmse(ta[ka], va[ka], tt, vt)
         autopilot = _rmse(tm[km], vm[km], tt, vt)
         # during the loss the active horizontal axes are the autopilot's velocity carried
-        # to the IMU's times (measured 0.2076/0.0407 against 0.2061/0.0407: +1 %); after
-        # it the observer filters the autopilot's snap back to GPS (measured 0.0858/0.0408
-        # against 0.0830/0.0401: +3 %, +2 %; east was +17 % while the bank's step left the
-        # frame's turn in north and east: observer.frame_ramp_mps2): the bound is the
-        # measured ratio with 5 % to spare
-        ratio = (1.05, 1.05) if a == t_on else (1.09, 1.07)
+        # to the IMU's times (measured 0.2078/0.0406 against 0.2061/0.0407: +1 %). After
+        # it (measured 0.0851/0.0404 against 0.0830/0.0401: +2.6 %, +0.7 %) the autopilot
+        # resets its velocity to the GPS's in one sample (north 0.375 m/s), and the record
+        # built at that sample's IMU time comes before it; no gain closes that
+        # (docs/field-failures.md). Bound: the measured ratio with 3 % to spare
+        ratio = (1.05, 1.05) if a == t_on else (1.06, 1.04)
         assert ours[0] <= ratio[0] * autopilot[0], (a, ours, autopilot)
         assert ours[1] <= ratio[1] * autopilot[1], (a, ours, autopilot)
+
+
+def _late_reset(reset_delay_s: float) -> tuple[list[tuple[Any, float]], float]:
+    """b_quad_gps_off with the autopilot's velocity reset at the GPS's return moved
+    ``reset_delay_s`` later (an autopilot that re-converges after its flags say aided):
+    the jump between its last sample before the fix and its first after (north −0.375,
+    east +0.088 m/s) is undone on the samples of that delay. Returns the messages and
+    the first fix's time."""
+    messages = _messages("b_quad_gps_off")
+    side = json.loads((DATA / "b_quad_gps_off.json").read_text())
+    t_fix = _first_gps_fix(messages, side["faults"][0]["end_time_boot_ms"] / 1e3)
+    lp = [m for m, _ in messages if m.get_type() == "LOCAL_POSITION_NED"]
+    i = next(k for k, m in enumerate(lp) if m.time_boot_ms * 1e-3 >= t_fix - 0.05)
+    dn, de = lp[i - 1].vx - lp[i].vx, lp[i - 1].vy - lp[i].vy
+    assert abs(dn) > 0.3  # (the reset is there: north 0.375 m/s)
+    for m in lp[i:]:
+        if m.time_boot_ms * 1e-3 >= t_fix + reset_delay_s:
+            break
+        m.vx += dn
+        m.vy += de
+    return messages, t_fix
+
+
+def _first_gps_fix(messages: list[tuple[Any, float]], after_s: float) -> float:
+    """The time of the first GPS_RAW_INT with a 3D fix after ``after_s``."""
+    t_last = 0.0
+    for msg, _ in messages:
+        if hasattr(msg, "time_boot_ms"):
+            t_last = msg.time_boot_ms * 1e-3
+        if msg.get_type() == "GPS_RAW_INT" and msg.fix_type >= 3 and t_last > after_s:
+            return t_last
+    raise AssertionError("no fix after the loss")
+
+
+def test_the_gps_velocity_bridges_an_autopilot_that_resets_late() -> None:
+    """The autopilot resets 0.4 s after the GPS's first fix: the bridge carries the GPS's
+    velocity until it agrees, and its FDI does not take the late reset for a fault."""
+    messages, t_fix = _late_reset(0.4)
+    out = {}
+    for bridge in (True, False):
+        sink = MemorySink()
+        est = EstimatorConfig(gps_bridge=GpsBridgeConfig(enabled=bridge))
+        service = Service(ServiceConfig(request_rates=False, estimation=est), [sink])
+        for msg, t in messages:
+            service.feed_message(msg, t, "log")
+        service.close()
+        vest = next(iter(service.estimators.values()))
+        records = sink.records
+        tt, vt = _truth(records)
+        active = _series(records, "active")
+        ta = np.array([r.t_boot_s for r in active])
+        va = np.array([r.v_ned_mps for r in active])
+        windows = []
+        for a, b in ((t_fix, t_fix + 1.0), (t_fix, t_fix + 10.0)):
+            k = (ta >= a) & (ta < b)
+            windows.append(_rmse(ta[k], va[k], tt, vt))
+        out[bridge] = (windows, vest.faults, vest.counters["gps_bridge_starts"])
+    meas = [r for r in records if r.__class__.__name__ == "MeasurementRecord"]
+    tm = np.array([r.t_boot_s for r in meas])  # type: ignore[attr-defined]
+    vm = np.array([r.v_ned_mps for r in meas])  # type: ignore[attr-defined]
+    km = (tm >= t_fix) & (tm < t_fix + 10.0)
+    autopilot = _rmse(tm[km], vm[km], tt, vt)
+    (w1, w10), faults, starts = out[True]
+    (n1, n10), faults_none, _ = out[False]
+    assert starts == 1 and faults == []
+    # without the bridge the FDI, warmed up on the level before the late reset, takes it
+    # for a bias on north and isolates it (measured: at 1.5 s, the end of its warm-up)
+    assert [f.axis for f in faults_none] == ["n"]
+    # measured north (m/s): first second 0.081 with the bridge, 0.263 without; 10 s 0.092
+    # with, 0.208 without, the autopilot 0.119 (the replay is deterministic). ArduPilot's
+    # SITL GPS velocity is nearly exact (0.004 m/s at its best lag): a real receiver's
+    # gives less; the bounds ask for half the measured gain
+    assert w1[0] <= 0.5 * n1[0], (w1, n1)
+    assert w10[0] <= 0.9 * min(n10[0], autopilot[0]), (w10, n10, autopilot)
+    assert w10[1] <= 1.05 * autopilot[1], (w10, autopilot)
+
+
+def test_a_gps_whose_velocity_agrees_with_the_autopilots_starts_no_bridge(
+    gps_loss: tuple[list[Record], float, float],
+) -> None:
+    """b_quad_gps_off as recorded: ArduPilot resets its velocity at the GPS's first fix,
+    so the GPS's velocity agrees with it there (within start_sigma σ_gps) and nothing is
+    bridged: the estimate is the one without a bridge."""
+    with_bridge, _, _ = gps_loss
+    without = _replay(_messages("b_quad_gps_off"), bridge=False)
+    a = [r.v_ned_mps for r in _series(with_bridge, "active")]
+    b = [r.v_ned_mps for r in _series(without, "active")]
+    assert len(a) > 4000 and a == b
 
 
 @pytest.fixture(scope="module")
