@@ -37,14 +37,19 @@ def _messages(name: str) -> list[tuple[Any, float]]:
     return [(r.msg, r.t_host_us * 1e-6) for r in iter_tlog(data, FrameCounters())]
 
 
-def _replay(messages: list[tuple[Any, float]], bridge: bool = True) -> list[Record]:
+def _run(messages: list[tuple[Any, float]], bridge: bool = True) -> tuple[Service, list[Record]]:
+    """The messages through a service (``bridge``: the GPS bridge on); it and its records."""
     sink = MemorySink()
     est = EstimatorConfig(gps_bridge=GpsBridgeConfig(enabled=bridge))
     service = Service(ServiceConfig(request_rates=False, estimation=est), [sink])
     for msg, t in messages:
         service.feed_message(msg, t, "log")
     service.close()
-    return sink.records
+    return service, sink.records
+
+
+def _replay(messages: list[tuple[Any, float]], bridge: bool = True) -> list[Record]:
+    return _run(messages, bridge)[1]
 
 
 def _series(records: list[Record], config: str) -> list[VelocityRecord]:
@@ -177,14 +182,8 @@ def test_the_gps_velocity_bridges_an_autopilot_that_resets_late() -> None:
     messages, t_fix = _late_reset(0.4)
     out = {}
     for bridge in (True, False):
-        sink = MemorySink()
-        est = EstimatorConfig(gps_bridge=GpsBridgeConfig(enabled=bridge))
-        service = Service(ServiceConfig(request_rates=False, estimation=est), [sink])
-        for msg, t in messages:
-            service.feed_message(msg, t, "log")
-        service.close()
+        service, records = _run(messages, bridge)
         vest = next(iter(service.estimators.values()))
-        records = sink.records
         tt, vt = _truth(records)
         active = _series(records, "active")
         ta = np.array([r.t_boot_s for r in active])
