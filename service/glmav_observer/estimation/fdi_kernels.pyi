@@ -28,3 +28,9 @@ def predict(
 def fill_rows(
     out: NDArray[np.float64], rows: Iterable[tuple[Any, ...]], correlation_samples: float
 ) -> None: ...
+def normal_equations(
+    arr: NDArray[np.float64],
+    anchor: NDArray[np.float64],
+    info: NDArray[np.float64],
+    rhs: NDArray[np.float64],
+) -> None: ...

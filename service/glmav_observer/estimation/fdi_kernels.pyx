@@ -9,7 +9,9 @@ handful of floats each; the logic that reads them stays in Python (:mod:`.fdi_ax
 - :func:`residual_ratios`: the bias and noise test ratios of the recent residuals
   (:meth:`AxisMonitor._ratios`): medians of up to ``noise_samples + 1`` floats;
 - :func:`fill_rows`: the reference fit's new vetted rows as rows of its array
-  (:meth:`ReferenceFit._array`).
+  (:meth:`ReferenceFit._array`);
+- :func:`normal_equations`: the fit's XᵀWX and XᵀWz from that array, the anchor taken
+  off each row on the way (:meth:`ReferenceFit._fit`).
 
 Float order. ŷ sums x_k θ̂_k left to right from 0, as ``sum(map(mul, x, θ))`` did: the
 same doubles. The medians select and average as ``statistics.median`` does (the mean of
@@ -18,6 +20,8 @@ the two middle values for an even count), and squares are libm's pow, as Python'
 σ²_pred = Σ_j (Σ_i x_i P_ij) x_j is summed in that order; numpy's ``x @ P @ x`` went
 through OpenBLAS (fused multiply-adds, its own blocking), so σ_pred may differ from the
 former value in its last bit (every record of the corpus replays is unchanged by it).
+XᵀWX and XᵀWz are summed over the rows in order, each entry on its own; numpy's
+``(X.T * w) @ X`` went through OpenBLAS too, so θ̂ may differ in its last bits.
 """
 
 from libc.math cimport fabs, isfinite, sqrt, NAN
@@ -168,3 +172,40 @@ def fill_rows(double[:, ::1] out, rows, double correlation_samples):
         out[i, 8] = -(<double>b_int[k + 2])
         out[i, 9] = c_int[j]
         out[i, 10] = -(<double>l_now[j])
+
+
+def normal_equations(
+    const double[:, ::1] arr, const double[:, ::1] anchor, double[:, ::1] info,
+    double[::1] rhs,
+):
+    """The reference fit's data terms (:meth:`ReferenceFit._fit`): with row i of ``arr``
+    (:func:`fill_rows`: axis j, z, w, then the 8 regressors) and x_i = arr[i, 3:] −
+    ``anchor[j]`` (the first row's −B_j and C_j taken off), ``info`` = Σ w_i x_i x_iᵀ
+    (XᵀWX, 8 × 8, symmetric) and ``rhs`` = Σ w_i z_i x_i (XᵀWz), without forming X."""
+    cdef Py_ssize_t n = arr.shape[0], i, j, k, l
+    cdef double x[8]
+    cdef double w, z, wx
+    if arr.shape[1] != 11 or anchor.shape[0] != 3 or anchor.shape[1] != 8:
+        raise ValueError("normal_equations: rows of 11 and an anchor of 3 x 8 expected")
+    if info.shape[0] != 8 or info.shape[1] != 8 or rhs.shape[0] != 8:
+        raise ValueError("normal_equations: info is 8 x 8 and rhs 8")
+    for k in range(8):
+        rhs[k] = 0.0
+        for l in range(8):
+            info[k, l] = 0.0
+    for i in range(n):
+        j = <Py_ssize_t>arr[i, 0]
+        if not 0 <= j < 3:
+            raise ValueError(f"a reference row's axis is 0-2, not {j}")
+        z = arr[i, 1]
+        w = arr[i, 2]
+        for k in range(8):
+            x[k] = arr[i, 3 + k] - anchor[j, k]
+        for k in range(8):
+            wx = w * x[k]
+            rhs[k] += wx * z
+            for l in range(k, 8):
+                info[k, l] += wx * x[l]
+    for k in range(8):
+        for l in range(k):
+            info[k, l] = info[l, k]

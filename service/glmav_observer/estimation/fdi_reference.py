@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from glmav_observer.estimation.fdi_kernels import fill_rows, predict
+from glmav_observer.estimation.fdi_kernels import fill_rows, normal_equations, predict
 from glmav_observer.estimation.fdi_types import FdiConfig
 
 #: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1),
@@ -297,10 +297,6 @@ class ReferenceFit:
         b0 = rows[0][3]
         c0 = rows[0][4]
         arr = self._array()
-        axes = arr[:, 0].astype(np.intp)
-        # contiguous arrays of their own, as BLAS (XtW @ z) has always been given them
-        z = arr[:, 1].copy()
-        w = arr[:, 2].copy()
         # the regressors anchored at the first row: −(B_j(τ) − B_j(τ₀)) (the array holds
         # −B_j) and C_j(τ) − C_j(τ₀)
         anchor = np.array(
@@ -310,7 +306,10 @@ class ReferenceFit:
                 for x in (0.0, 0.0, 0.0, -b0[3 * j], -b0[3 * j + 1], -b0[3 * j + 2], c0[j], 0.0)
             ]
         ).reshape(3, N_THETA)
-        X = np.subtract(arr[:, 3:], anchor.take(axes, axis=0), order="C")
+        # XᵀWX and XᵀWz in one pass over the rows (X = the rows' regressors − the anchor)
+        xtwx = np.empty((N_THETA, N_THETA))
+        xtwz = np.empty(N_THETA)
+        normal_equations(arr, anchor, xtwx, xtwz)
         prior = np.array(
             [_V0_PRECISION] * 3
             + [1.0 / cfg.prior_bias_mps2**2] * 3
@@ -331,9 +330,8 @@ class ReferenceFit:
             if carried is not None and rows[-1][0] <= carried[2]:
                 mean[3:7] = carried[0]
                 prior[3:7] = 1.0 / np.square(carried[1])
-        XtW = X.T * w
-        info = XtW @ X + np.diag(prior)
-        rhs = XtW @ z + prior * mean
+        info = xtwx + np.diag(prior)
+        rhs = xtwz + prior * mean
         try:
             cov = np.linalg.inv(info)
         except np.linalg.LinAlgError:
@@ -348,7 +346,7 @@ class ReferenceFit:
             # cov = [[C₀ + S P₁ Sᵀ, S P₁], [P₁ Sᵀ, P₁]]. A held heading error then says how
             # uncertain it makes a healthy axis's prediction in the next acceleration.
             c0_v = cov[:3, :3]
-            sens = -c0_v @ (XtW[:3] @ X[:, 3:])
+            sens = -c0_v @ xtwx[:3, 3:]  # X₀ᵀW X₁
             p1 = np.asarray(old.cov[3:, 3:])
             cov = np.block([[c0_v + sens @ p1 @ sens.T, sens @ p1], [p1 @ sens.T, p1]])
         else:

@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 from glmav_observer.estimation.fdi_axis import CHI2_1_MEDIAN
-from glmav_observer.estimation.fdi_kernels import fill_rows, predict, residual_ratios
+from glmav_observer.estimation.fdi_kernels import (
+    fill_rows,
+    normal_equations,
+    predict,
+    residual_ratios,
+)
 
 
 def _ratios_oracle(  # noqa: PLR0917 -- the kernel's own arguments, in order
@@ -125,3 +130,35 @@ def test_fill_rows_refuses_more_rows_than_held() -> None:
     with pytest.raises(ValueError, match="11"):
         fill_rows(np.empty((3, 11)), deque([(0.0, 0, 0.0, (0.0,) * 9, (0.0,) * 3, 1.0,
                                              (0.0,) * 3)]), 1.0)  # fmt: skip
+
+
+@pytest.mark.parametrize("n", [1, 17, 600])
+def test_normal_equations_are_numpys_xtwx_and_xtwz(n: int) -> None:
+    """The oracle: ReferenceFit._fit's numpy before the kernel, X = the rows' regressors
+    less the anchor of each row's axis, XᵀWX = (Xᵀ * w) @ X and XᵀWz = (Xᵀ * w) @ z."""
+    rng = np.random.default_rng(n)
+    arr = np.empty((n, 11))
+    arr[:, 0] = rng.integers(0, 3, n)
+    arr[:, 1] = rng.normal(0.0, 3.0, n)
+    arr[:, 2] = rng.uniform(10.0, 400.0, n)
+    arr[:, 3:] = rng.normal(0.0, 50.0, (n, 8))
+    anchor = rng.normal(0.0, 50.0, (3, 8))
+    x = arr[:, 3:] - anchor.take(arr[:, 0].astype(np.intp), axis=0)
+    xtw = x.T * arr[:, 2]
+    info, rhs = np.empty((8, 8)), np.empty(8)
+    normal_equations(arr, anchor, info, rhs)
+    # sums of n products of numbers ~1e2·1e2·4e2: the order of summation differs from
+    # BLAS's, so a few ulps of the largest term (1e-16 relative × n terms)
+    scale = float(np.abs(xtw).max() * np.abs(x).max()) * n * 1e-15
+    np.testing.assert_allclose(info, xtw @ x, rtol=0.0, atol=scale)
+    np.testing.assert_allclose(rhs, xtw @ arr[:, 1], rtol=0.0, atol=scale)
+    assert (info == info.T).all()
+
+
+def test_normal_equations_refuse_a_bad_axis_or_shape() -> None:
+    arr = np.zeros((2, 11))
+    arr[1, 0] = 3.0
+    with pytest.raises(ValueError, match="axis is 0-2"):
+        normal_equations(arr, np.zeros((3, 8)), np.empty((8, 8)), np.empty(8))
+    with pytest.raises(ValueError, match="rows of 11"):
+        normal_equations(np.zeros((2, 10)), np.zeros((3, 8)), np.empty((8, 8)), np.empty(8))
