@@ -171,7 +171,7 @@ class GpsBridgeConfig:
 class GpsBridge:
     """B1's state: the acceleration integral's recent history, the learnt lag, and the
     bridge while it runs (module docstring). Kept across the estimator's restarts (the
-    lag is the link's); :meth:`stop` ends a bridge."""
+    lag is the link's: :meth:`restart`); :meth:`stop` ends a bridge."""
 
     def __init__(self, cfg: GpsBridgeConfig) -> None:
         self.cfg = cfg
@@ -371,8 +371,16 @@ class GpsBridge:
         if self.active:
             self._end_due = True
 
+    def restart(self) -> None:
+        """The estimator restarts (a gap, a reboot, a clock reset): the bridge ends, and
+        the integrals' history goes with the bank they came from; what was learnt of the
+        lag and of the GPS stays (the link's), learnt on from the next sample on."""
+        self.stop()
+        self._hist.clear()
+        self._t_learnt_s = -math.inf
+
     def stop(self) -> None:
-        """The bridge ends at once (the estimator restarts)."""
+        """The bridge ends at once."""
         self.active = False
         self._t_blend_s = None
         self._end_due = False

@@ -267,7 +267,7 @@ class VehicleEstimator:
         self.t_first_s: float | None = None
         self._t_imu_s: float | None = None  # the last IMU sample's time (trapezoid_imu)
         self._use: list[bool] = [False, False, False]
-        self.bridge.stop()
+        self.bridge.restart()
         #: per NED axis, the vehicle time until which ``active`` still follows the
         #: autopilot's velocity after it was aided again (``readmit_follow_s``)
         self._follow_until_s: list[float] = [-math.inf] * 3

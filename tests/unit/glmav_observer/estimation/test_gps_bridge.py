@@ -241,3 +241,20 @@ def test_b1_takes_the_fitted_accelerometer_bias_out_as_the_bank_does() -> None:
     truth = _v(t2 + 0.04)
     y = bridge.measurement(t2 + 0.04, (truth[0] + AP_OFF_MPS, truth[1]), aided=False)
     assert y is not None and abs(y[0] - truth[0]) == pytest.approx(0.2 * 0.33, abs=0.01)
+
+
+def test_a_restart_ends_the_bridge_and_keeps_what_was_learnt() -> None:
+    """After a reboot the vehicle's time starts again near 0 and the bank's integrals
+    from 0: the history goes, the lag and the trust stay, and learning goes on at once
+    (not only once the new clock passes the old one)."""
+    bridge, _ = _started()
+    lag = bridge.lag_s
+    bridge.restart()
+    assert not bridge.active and bridge.trusted and bridge.lag_s == lag
+    assert bridge.learn_due(1.0)
+    # the first GPS sample after the reboot, before any integral is noted: nothing to
+    # carry it with, so no bridge (and no error)
+    bridge.on_gps(
+        1.0, (5.0, 0.0), sigma_gps_mps=None, start=True, v_est=(0.0, 0.0), sigma_est_mps=0.3
+    )
+    assert not bridge.active
