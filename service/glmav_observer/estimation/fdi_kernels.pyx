@@ -11,7 +11,8 @@ handful of floats each; the logic that reads them stays in Python (:mod:`.fdi_ax
 - :func:`fill_rows`: the reference fit's new vetted rows as rows of its array
   (:meth:`ReferenceFit._array`);
 - :func:`normal_equations`: the fit's XᵀWX and XᵀWz from that array, the anchor taken
-  off each row on the way (:meth:`ReferenceFit._fit`).
+  off each row on the way, and :func:`spd_inverse`, its information matrix inverted by
+  Cholesky (:meth:`ReferenceFit._fit`).
 
 Float order. ŷ sums x_k θ̂_k left to right from 0, as ``sum(map(mul, x, θ))`` did: the
 same doubles. The medians select and average as ``statistics.median`` does (the mean of
@@ -21,7 +22,8 @@ the two middle values for an even count), and squares are libm's pow, as Python'
 through OpenBLAS (fused multiply-adds, its own blocking), so σ_pred may differ from the
 former value in its last bit (every record of the corpus replays is unchanged by it).
 XᵀWX and XᵀWz are summed over the rows in order, each entry on its own; numpy's
-``(X.T * w) @ X`` went through OpenBLAS too, so θ̂ may differ in its last bits.
+``(X.T * w) @ X`` went through OpenBLAS too, and ``numpy.linalg.inv`` through LAPACK's
+LU, so θ̂ and its covariance may differ in their last bits.
 """
 
 from libc.math cimport fabs, isfinite, sqrt, NAN
@@ -209,3 +211,45 @@ def normal_equations(
     for k in range(8):
         for l in range(k):
             info[k, l] = info[l, k]
+
+
+def spd_inverse(const double[:, ::1] a, double[:, ::1] out):
+    """``out`` = a⁻¹ for a symmetric positive definite ``a`` (n × n, n ≤ 16), by its
+    Cholesky factor L: a⁻¹ = L⁻ᵀ L⁻¹. Returns False, ``out`` undefined, when a pivot is
+    not positive and finite (not positive definite to working precision: the caller
+    falls back to a general inverse)."""
+    cdef Py_ssize_t n = a.shape[0], i, j, k
+    cdef double L[16][16]
+    cdef double M[16][16]
+    cdef double acc
+    if n > 16 or a.shape[1] != n or out.shape[0] != n or out.shape[1] != n:
+        raise ValueError("spd_inverse: square matrices of at most 16 x 16 expected")
+    for j in range(n):  # L, column by column (a's lower triangle)
+        acc = a[j, j]
+        for k in range(j):
+            acc -= L[j][k] * L[j][k]
+        if not (acc > 0.0 and isfinite(acc)):
+            return False
+        L[j][j] = sqrt(acc)
+        for i in range(j + 1, n):
+            acc = a[i, j]
+            for k in range(j):
+                acc -= L[i][k] * L[j][k]
+            L[i][j] = acc / L[j][j]
+    for j in range(n):  # M = L⁻¹ (lower triangular), column j by forward substitution
+        for i in range(j):
+            M[i][j] = 0.0
+        M[j][j] = 1.0 / L[j][j]
+        for i in range(j + 1, n):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= L[i][k] * M[k][j]
+            M[i][j] = acc / L[i][i]
+    for i in range(n):  # out = Mᵀ M, symmetric
+        for j in range(i, n):
+            acc = 0.0
+            for k in range(j, n):
+                acc += M[k][i] * M[k][j]
+            out[i, j] = acc
+            out[j, i] = acc
+    return True

@@ -37,7 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from glmav_observer.estimation.fdi_kernels import fill_rows, normal_equations, predict
+from glmav_observer.estimation.fdi_kernels import (
+    fill_rows,
+    normal_equations,
+    predict,
+    spd_inverse,
+)
 from glmav_observer.estimation.fdi_types import FdiConfig
 
 #: Number of fitted parameters: V0 (3), body accelerometer bias (3), heading error (1),
@@ -332,10 +337,12 @@ class ReferenceFit:
                 prior[3:7] = 1.0 / np.square(carried[1])
         info = xtwx + np.diag(prior)
         rhs = xtwz + prior * mean
-        try:
-            cov = np.linalg.inv(info)
-        except np.linalg.LinAlgError:
-            return
+        cov: FloatArray = np.empty((N_THETA, N_THETA))
+        if not spd_inverse(info, cov):  # (positive definite: priors on every parameter)
+            try:
+                cov = np.asarray(np.linalg.inv(info), dtype=np.float64)
+            except np.linalg.LinAlgError:
+                return
         theta = cov @ rhs
         if self.frozen_bias and old is not None:
             # B anchor moved: with b, δψ held, only V0 changes; keep θ's b, δψ exactly
