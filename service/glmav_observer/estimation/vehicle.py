@@ -606,7 +606,8 @@ class VehicleEstimator:
         f_mean = inputs.f_mean_since_measurement()
         y = self._lag_compensated(s.v_ned_mps, ints[2])
         bridge = self.bridge
-        bridge.note(t, inputs.a_int, ints[0], self.fdi.fit.bias_body_mps2)
+        if bridge.cfg.enabled:
+            bridge.note(t, inputs.a_int, ints[0], self.fdi.fit.bias_body_mps2)
         if bridge.active:
             bridging = bridge.bridging
             y_ne = bridge.measurement(t, (y[0], y[1]), not self.drift.unaided()[0])
@@ -671,7 +672,7 @@ class VehicleEstimator:
         drift = self.drift
         if s.gps_v_ne_mps is not None and self.imus is not None and self.t_bank_s is not None:
             self._resolve_imu(s.t_boot_s, s.gps_v_ne_mps)
-        if s.source == "GPS_RAW_INT" and self.t_bank_s is not None:
+        if s.source == "GPS_RAW_INT" and self.t_bank_s is not None and self.bridge.cfg.enabled:
             self._gps_bridge(s)
         if s.source == "EKF_STATUS_REPORT":
             drift.on_ekf(s.t_boot_s, s.horizontal_aided, s.vertical_aided)
@@ -691,7 +692,7 @@ class VehicleEstimator:
             bridge.gps_lost(t)
             return
         drift = self.drift
-        use = bridge.active or (drift.gps_lost and bridge.cfg.enabled)
+        use = bridge.active or drift.gps_lost
         learn = (
             not use
             and bridge.learn_due(t)
