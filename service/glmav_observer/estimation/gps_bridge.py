@@ -55,7 +55,7 @@ returns: the GPS's own velocity").
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -173,8 +173,12 @@ class GpsBridge:
     bridge while it runs (module docstring). Kept across the estimator's restarts (the
     lag is the link's: :meth:`restart`); :meth:`stop` ends a bridge."""
 
-    def __init__(self, cfg: GpsBridgeConfig) -> None:
+    def __init__(self, cfg: GpsBridgeConfig, counters: Counter[str] | None = None) -> None:
+        """``counters``: where its events are counted (``gps_bridge_starts``,
+        ``_rejected``, ``_not_needed``, ``_measurements``; the estimator's, which health
+        records publish); its own when None."""
         self.cfg = cfg
+        self.counters: Counter[str] = Counter() if counters is None else counters
         n = round(cfg.lag_max_s / cfg.lag_step_s) + 1
         self._lags_np = np.arange(n) * cfg.lag_step_s
         #: per L of the grid, the forgotten sum of squared residuals (n and e)
@@ -201,10 +205,21 @@ class GpsBridge:
         self._end_due = False
         self._t_blend_s: float | None = None
         self._rejects = 0
-        self.starts = 0
-        self.rejected = 0
-        #: fixes back after a loss with the autopilot already agreeing (no bridge needed)
-        self.not_needed = 0
+
+    @property
+    def starts(self) -> int:
+        """Bridges started."""
+        return self.counters["gps_bridge_starts"]
+
+    @property
+    def rejected(self) -> int:
+        """GPS samples out of the gate against the bank's estimate."""
+        return self.counters["gps_bridge_rejected"]
+
+    @property
+    def not_needed(self) -> int:
+        """Fixes back after a loss with the autopilot already agreeing with the GPS."""
+        return self.counters["gps_bridge_not_needed"]
 
     # ------------------------------------------------------------ A's history
     def note(
@@ -243,11 +258,6 @@ class GpsBridge:
                 w = (t_s - r0[0]) / (r1[0] - r0[0])
                 return tuple(x0 + w * (x1 - x0) for x0, x1 in zip(r0[1:], r1[1:], strict=True))
         return None  # pragma: no cover - t_s ≥ hist[0][0] ends the loop above
-
-    def _a_at(self, t_s: float) -> Ne | None:
-        """A − B b̂ (n, e) at ``t_s`` with the bias in force now; None before the first."""
-        r = self._raw_at(t_s)
-        return None if r is None else self._compensated(r)
 
     def _compensated(self, r: Row) -> Ne:
         b = self._bias
@@ -341,18 +351,18 @@ class GpsBridge:
         gate = cfg.gate_sigma * math.sqrt(sigma_est_mps**2 + sigma_g**2)
         off = max(abs(y[0] - v_est[0]), abs(y[1] - v_est[1]))
         if off > gate:
-            self.rejected += 1
+            self.counters["gps_bridge_rejected"] += 1
             self._rejects += 1
             if self.active and self._rejects >= cfg.max_rejects:
                 self._end_due = True
             return
         self._rejects = 0
         if not self.active and off <= cfg.start_sigma * sigma_g:
-            self.not_needed += 1  # the autopilot already agrees: nothing to bridge
+            self.counters["gps_bridge_not_needed"] += 1  # the autopilot already agrees
             return
         if not self.active:
             self.active = True
-            self.starts += 1
+            self.counters["gps_bridge_starts"] += 1
             self._t_start_s = t_s
             self._t_blend_s = None
             self._end_due = False
@@ -402,6 +412,7 @@ class GpsBridge:
             agrees = aided and abs(y_ap[0] - y_b[0]) <= tol and abs(y_ap[1] - y_b[1]) <= tol
             late = t_s - self._t_gps_s > cfg.gps_timeout_s or t_s - self._t_start_s > cfg.max_s
             if not (agrees or late or self._end_due):
+                self.counters["gps_bridge_measurements"] += 1
                 return y_b
             # the hand back: B1 − the autopilot's velocity now decays over blend_s
             self._t_blend_s = t_s
@@ -410,4 +421,5 @@ class GpsBridge:
         if w <= 0.0:
             self.stop()
             return None
+        self.counters["gps_bridge_measurements"] += 1
         return (y_ap[0] + w * self._offset[0], y_ap[1] + w * self._offset[1])

@@ -225,7 +225,7 @@ class VehicleEstimator:
         #: (t, GPS v n e, A n e) at the first GPS sample after a two-IMU fault's onset
         self._imu_anchor: tuple[float, tuple[float, float], tuple[float, float]] | None = None
         #: the GPS's velocity after a GPS loss (its lag learnt: a link fact, kept)
-        self.bridge = GpsBridge(config.gps_bridge)
+        self.bridge = GpsBridge(config.gps_bridge, self.counters)
         self._seed: EstimatorSeed | None = None
         #: vehicle s between a seed's state and the sample it was applied at (None: none)
         self.seed_age_s: float | None = None
@@ -613,7 +613,6 @@ class VehicleEstimator:
             y_ne = bridge.measurement(t, (y[0], y[1]), not self.drift.unaided()[0])
             if y_ne is not None:
                 y[0], y[1] = y_ne
-                self.counters["gps_bridge_measurements"] += 1
             if bridging and not bridge.bridging:
                 self._apply_unaided(t)  # the autopilot agrees again: its axes are tested
         inputs.hold_measurement(y)
@@ -714,13 +713,10 @@ class VehicleEstimator:
             if since is None
             else sigma_dead_reckoning_mps(self.cfg.fdi, t - since)
         )
-        started = bridge.starts
         bridge.on_gps(
             t, v, sigma_gps_mps=s.gps_v_sigma_mps, start=drift.gps_lost,
             v_est=(est[0], est[1]), sigma_est_mps=sigma_est,
         )  # fmt: skip
-        if bridge.starts != started:
-            self.counters["gps_bridge_starts"] += 1
 
     def _resolve_imu(self, t: float, gps_v_ne_mps: tuple[float, float]) -> None:
         """Two IMUs disagree (difference D = f_2 − f_1): the GPS's own ground velocity
