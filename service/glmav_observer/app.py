@@ -203,6 +203,7 @@ class Service:
                 datagram=datagram,
                 signing_key=self.config.signing_key,
                 signing_state=self.signing,
+                fields_of=self.ingest.fields_of,  # the rest framed, CRC-checked, not decoded
             )
         return dec
 

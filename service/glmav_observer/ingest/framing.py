@@ -48,6 +48,11 @@ from glmav_observer.ingest import fastframe
 
 logger = logging.getLogger(__name__)
 
+#: every message of the dialect (ardupilotmega, a superset of common), by name
+ALL_MESSAGES: frozenset[str] = frozenset(
+    cls.msgname for cls in mavlink_dialect.mavlink_map.values()
+)
+
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
 _HEADER_V1 = 6
@@ -214,8 +219,16 @@ class FrameDecoder:
         counters: FrameCounters | None = None,
         signing_key: bytes | None = None,
         signing_state: SigningState | None = None,
+        fields_of: frozenset[str] | None = None,
     ) -> None:
+        """``fields_of``: the messages whose fields the reader needs (None: every
+        message). The frames of every other message of the dialect are CRC-checked
+        without pymavlink's decode and come back as :class:`~glmav_observer.ingest.
+        fastframe.HeaderOnly` (the header; the fields only if asked for)."""
         self._mav = new_dialect()
+        self._header_only: bytes | None = (
+            None if fields_of is None else fastframe.header_only_ids(ALL_MESSAGES - fields_of)
+        )
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError("a MAVLink 2 signing key is 32 bytes")
         # MAVLink 2 signing: only frames signed with this key pass. Checked here, not by
@@ -240,7 +253,7 @@ class FrameDecoder:
         it is rejected."""
         if buf[p] == MAGIC_V2 and buf[p + 2] & ~_IFLAG_SIGNED:
             return None, "bad_header"  # unknown incompatibility flags: cannot be parsed
-        msg = fastframe.decode(buf, p, length)
+        msg = fastframe.decode(buf, p, length, self._header_only)
         if msg is None:  # not one of the high-rate messages: the dialect's decode
             try:
                 msg = self._mav.decode(bytearray(buf[p : p + length]))
@@ -297,7 +310,7 @@ class FrameDecoder:
         n = len(data)
         if self._signing_key is None:
             # a datagram of one valid high-rate frame (what vehicles send): at once
-            msg = fastframe.decode(data, 0, n)
+            msg = fastframe.decode(data, 0, n, self._header_only)
             if msg is not None and msg is not fastframe.BAD_CRC:
                 self.counters.counts["frames_ok"] += 1
                 return [msg]
@@ -369,16 +382,20 @@ class TlogRecord:
     offset: int
 
 
-def iter_tlog(data: bytes, counters: FrameCounters | None = None) -> Iterator[TlogRecord]:
+def iter_tlog(
+    data: bytes, counters: FrameCounters | None = None, fields_of: frozenset[str] | None = None
+) -> Iterator[TlogRecord]:
     """Decode a ``.tlog`` image: records of an 8-byte big-endian µs timestamp and a frame.
 
     A record whose frame fails to decode is counted and skipped as a whole when the next
     record's frame starts where expected; otherwise we resync on the next offset where
     a frame decodes (the 8 bytes before it are its timestamp). ``counters`` gets the
-    same reasons as :class:`FrameDecoder`, plus ``tlog_resync_bytes``.
+    same reasons as :class:`FrameDecoder`, plus ``tlog_resync_bytes``; ``fields_of`` as
+    :class:`FrameDecoder`'s.
     """
     ctr = counters if counters is not None else FrameCounters()
-    dec = FrameDecoder(datagram=True, counters=FrameCounters())  # only for _try_decode
+    # only for _try_decode
+    dec = FrameDecoder(datagram=True, counters=FrameCounters(), fields_of=fields_of)
     n = len(data)
     p = 0
 

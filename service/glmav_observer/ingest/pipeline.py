@@ -114,6 +114,10 @@ IngestEvent = (
 
 #: MAVLink: MAV_CMD_SET_MESSAGE_INTERVAL (a COMMAND_ACK answering a rate request).
 _CMD_SET_MESSAGE_INTERVAL = 511
+#: the messages besides the samples, HEARTBEAT and SYSTEM_TIME whose fields
+#: :meth:`Ingest._other` reads (keep the two in step: the frames of every other message
+#: are framed without their fields, :attr:`Ingest.fields_of`)
+OTHER_READ: frozenset[str] = frozenset({"RADIO_STATUS", "MESSAGE_INTERVAL", "COMMAND_ACK"})
 #: MAVLink: HEARTBEAT.autopilot of a component that is not an autopilot; type of a GCS.
 MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS = 6
@@ -356,6 +360,13 @@ class Ingest:
         v.held_count += 1
         self._release(v, v.newest_t_s - window, events)
         return events
+
+    @property
+    def fields_of(self) -> frozenset[str]:
+        """The messages whose fields :meth:`on_message` reads (the samples', HEARTBEAT,
+        SYSTEM_TIME and :data:`OTHER_READ`); of every other message only the header
+        (``FrameDecoder(fields_of=...)`` then skips pymavlink's decode of them)."""
+        return self.consumed | {"HEARTBEAT", "SYSTEM_TIME"} | OTHER_READ
 
     def _other(self, name: str, msg: Any, v: VehicleInput | None) -> list[IngestEvent]:
         """A message that is not a sample: the answers to the rate requests, a radio's

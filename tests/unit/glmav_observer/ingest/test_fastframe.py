@@ -226,7 +226,8 @@ def test_fields_are_writable_like_pymavlinks() -> None:
 
 def _run(datagrams: list[bytes], *, datagram: bool, reference: bool, mp: Any, **kw: Any) -> Any:
     if reference:
-        mp.setattr(fastframe, "decode", lambda data, start, length: None)
+        mp.setattr(fastframe, "decode", lambda data, start, length, header_only=None: None)
+        kw.pop("fields_of", None)  # the reference decodes every frame with pymavlink
     try:
         counters = FrameCounters()
         dec = FrameDecoder(datagram=datagram, counters=counters, **kw)
@@ -236,18 +237,30 @@ def _run(datagrams: list[bytes], *, datagram: bool, reference: bool, mp: Any, **
     compiled = sum(isinstance(m, FastMessage) for m in msgs)
     # the reference decodes nothing itself; the compiled path all but the low-rate messages
     assert compiled == 0 if reference else compiled > 0.9 * len(msgs)
+    # header-only: every message the ingest reads no field of (the stream's SERVO_OUTPUT_RAW
+    # is read: a control sample), and none other
+    heads = {m.get_type() for m in msgs if isinstance(m, fastframe.HeaderOnly)}
+    fields_of = kw.get("fields_of")
+    if fields_of is None or reference:
+        assert not heads
+    else:
+        every = {m.get_type() for m in msgs} - FAST_MESSAGES
+        assert heads == every - fields_of and "GLOBAL_POSITION_INT" in heads
     return [_fields(m) for m in msgs], counters.as_dict()
 
 
+@pytest.mark.parametrize("header_only", [False, True])
 @pytest.mark.parametrize("datagram", [True, False])
 def test_verdicts_and_counters_equal_a_pymavlink_reference(
-    datagram: bool, monkeypatch: pytest.MonkeyPatch
+    datagram: bool, header_only: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The simulator's stream (every message kind a vehicle sends, MAVLink 2) with every
     damaged case of the fuzz benchmark interleaved (bit flips, truncation, corrupt lengths,
     garbage, MAVLink 1, duplicates...): the same messages and the same counters by reason
     as the framing that gives every frame to pymavlink's decode. As UDP datagrams and as a
-    TCP byte stream cut at random places."""
+    TCP byte stream cut at random places. ``header_only``: the framing the service uses
+    (``fields_of`` its ingest's): the messages it reads no field of come back header-only,
+    with the same verdicts, and the same fields when asked for after all."""
     stream = sitl_stream("cruise", 3.0, seed=2)
     maker = CaseMaker(stream.frames, b"", seed=5, vehicle_safe=False)
     kinds = [k for k in KINDS if k != "real_corrupt"]
@@ -261,7 +274,8 @@ def test_verdicts_and_counters_equal_a_pymavlink_reference(
         blob = b"".join(datagrams)
         cuts = sorted(rng.sample(range(1, len(blob)), len(datagrams) // 3))
         datagrams = [blob[a:b] for a, b in zip([0, *cuts], [*cuts, len(blob)], strict=True)]
-    seen, counts = _run(datagrams, datagram=datagram, reference=False, mp=monkeypatch)
+    kw = {"fields_of": Ingest(IngestConfig()).fields_of} if header_only else {}
+    seen, counts = _run(datagrams, datagram=datagram, reference=False, mp=monkeypatch, **kw)
     ref_seen, ref_counts = _run(datagrams, datagram=datagram, reference=True, mp=monkeypatch)
     assert counts == ref_counts
     assert counts["bad_crc"] > 20 and counts["frames_ok"] > 1000  # the damage reached it
@@ -315,3 +329,53 @@ def test_ingest_refuses_a_high_rate_message_not_decoded_here() -> None:
     att.pack(dialect.MAVLink(None))
     with pytest.raises(TypeError, match="FrameDecoder"):
         ing.on_message(att, 0.0)
+
+
+def test_header_only_frames_are_checked_and_decoded_on_demand() -> None:
+    """A message flagged header-only: its CRC checked like a high-rate one's, its header
+    read, its fields pymavlink's when asked for; not flagged, or its payload longer than
+    the message's longest form, or an id above 255: left to pymavlink (None)."""
+    flags = fastframe.header_only_ids({"SERVO_OUTPUT_RAW", "VFR_HUD", "ATTITUDE"})
+    assert len(flags) == 256 and sum(flags) == 2  # ATTITUDE is decoded in full anyway
+    servo = dialect.MAVLink_servo_output_raw_message(123456, 0, *range(1000, 1008))
+    for mav1 in (False, True):
+        mav = dialect.MAVLink(None, srcSystem=7, srcComponent=3)
+        frame = bytes(servo.pack(mav, force_mavlink1=mav1))
+        msg = fastframe.decode(frame, 0, len(frame), flags)
+        assert isinstance(msg, fastframe.HeaderOnly)
+        assert (msg.get_type(), msg.get_srcSystem(), msg.get_srcComponent(), msg.get_msgId()) == (
+            "SERVO_OUTPUT_RAW", 7, 3, 36,
+        )  # fmt: skip
+        assert msg.get_msgbuf() == frame
+        ref = dialect.MAVLink(None).decode(bytearray(frame))
+        assert _fields(msg) == _fields(ref) and msg.servo8_raw == 1007
+        assert msg.to_dict() == ref.to_dict()
+        assert fastframe.decode(frame, 0, len(frame)) is None  # not flagged: pymavlink's
+        bad = frame[:-1] + bytes([frame[-1] ^ 0x55])
+        assert fastframe.decode(bad, 0, len(bad), flags) == BAD_CRC
+    # a MAVLink 2 payload longer than SERVO_OUTPUT_RAW's longest (37 bytes): pymavlink's
+    frame = bytes(servo.pack(dialect.MAVLink(None)))
+    payload = frame[10:-2].ljust(40, b"\x01")  # 3 bytes beyond the longest form
+    long = bytes([frame[0], len(payload)]) + frame[2:10] + payload
+    long += frame_crc(long, 1, len(long), 222).to_bytes(2, "little")
+    assert fastframe.decode(long, 0, len(long), flags) is None
+    # an id above 255 (MAVLink 2 only): pymavlink's
+    wide = dialect.MAVLink_adap_tuning_message(1, *[0.5] * 12)  # id 11010
+    f2 = bytes(wide.pack(dialect.MAVLink(None)))
+    assert fastframe.decode(f2, 0, len(f2), fastframe.header_only_ids({"ADAP_TUNING"})) is None
+
+
+def test_the_service_ignores_header_only_messages_as_before() -> None:
+    """The service's framing skips pymavlink's decode of what its ingest does not read;
+    those messages are counted as ignored exactly as when they were decoded."""
+    from glmav_observer.app import Service
+    from glmav_observer.config import ServiceConfig
+
+    mav = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
+    hb = bytes(dialect.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(mav))
+    vfr = bytes(dialect.MAVLink_vfr_hud_message(1, 2, 3, 4, 5, 6).pack(mav))
+    service = Service(ServiceConfig(), [])
+    for d in (hb, vfr, vfr):
+        service.feed_bytes("udp", d, 0.0)
+    assert service.ingest.counters["ignored_messages"] == 2
+    assert service.decoders["udp"].counters.as_dict() == {"frames_ok": 3}
