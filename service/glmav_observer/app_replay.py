@@ -22,6 +22,7 @@ from glmav_observer.ingest.framing import (
     FrameDecoder,
     iter_tlog,
 )
+from glmav_observer.ingest.pipeline import FIELDS_READ
 from glmav_observer.publish.sink import Sink
 from glmav_observer.records import CONFIGS, Record, VelocityRecord
 
@@ -52,7 +53,7 @@ def replay_tlog(
     else:
         data = Path(path).read_bytes()
         counters = FrameCounters()
-        records = iter_tlog(data, counters)
+        records = iter_tlog(data, counters, FIELDS_READ)
     service = Service(config, sinks)
     service.decoders[str(path)] = FrameDecoder(datagram=False, counters=counters)
     n = len(data)

@@ -118,6 +118,9 @@ _CMD_SET_MESSAGE_INTERVAL = 511
 #: :meth:`Ingest._other` reads (keep the two in step: the frames of every other message
 #: are framed without their fields, :attr:`Ingest.fields_of`)
 OTHER_READ: frozenset[str] = frozenset({"RADIO_STATUS", "MESSAGE_INTERVAL", "COMMAND_ACK"})
+#: every message whose fields an :class:`Ingest` may read, whatever its configuration (a
+#: log read for a replay is framed with it: ``iter_tlog(fields_of=FIELDS_READ)``)
+FIELDS_READ: frozenset[str] = SAMPLE_MESSAGES | {"HEARTBEAT", "SYSTEM_TIME"} | OTHER_READ
 #: MAVLink: HEARTBEAT.autopilot of a component that is not an autopilot; type of a GCS.
 MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS = 6

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from glmav_observer.ingest.framing import FrameCounters, TlogRecord, iter_tlog
 from glmav_observer.ingest.logfiles.streams import LogError, UnsupportedLogError
+from glmav_observer.ingest.pipeline import FIELDS_READ
 
 #: What the estimator needs from a vehicle: (what, the messages that give it).
 TLOG_NEEDS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -69,7 +70,7 @@ class TlogScan:
         self._prefix, self._rest = None, None
         if prefix is None or rest is None:  # dropped (or already replayed): decode again
             self.counters = FrameCounters()
-            return iter_tlog(self.data, self.counters), self.counters
+            return iter_tlog(self.data, self.counters, FIELDS_READ), self.counters
         return itertools.chain(prefix, rest), self.counters
 
     @property
@@ -99,7 +100,8 @@ def scan_tlog(data: bytes) -> TlogScan:
     """Decode ``data`` (a tlog image) until one vehicle has sent all the estimator needs."""
     scan = TlogScan(data)
     needs = scan.needs_met
-    records = iter_tlog(data, scan.counters)
+    # framed for the service's replay: the messages no ingest reads a field of header-only
+    records = iter_tlog(data, scan.counters, FIELDS_READ)
     scan._rest = records
     for rec in records:
         scan.frames_ok += 1
