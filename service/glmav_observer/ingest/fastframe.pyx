@@ -254,10 +254,9 @@ cdef object _imu_check(double f0, double f1, double f2, double w0, double w1, do
     return None
 
 
-cdef class FastMessage:
-    """A decoded frame of one of :data:`FAST_MESSAGES`: the header and (in each subclass)
-    the message's fields under the dialect's names; pymavlink's accessors for what the
-    service reads of a message."""
+cdef class FrameHeader:
+    """A frame whose CRC checked: its header, with pymavlink's accessors for it (the base
+    of :class:`FastMessage` and :class:`HeaderOnly`)."""
 
     cdef readonly str name
     cdef readonly int msgid
@@ -266,16 +265,6 @@ cdef class FastMessage:
     cdef readonly int seq
     cdef readonly bint signed
     cdef object _msgbuf
-    #: the kind of the message's time stamp (convert.TimeKind)
-    cdef readonly object time_kind
-
-    @property
-    def t_us(self):
-        """The message's raw time stamp in µs (0 for SIM_STATE: it has none)."""
-        return self._t_us()
-
-    cdef object _t_us(self):
-        return 0
 
     def get_type(self):
         return self.name
@@ -297,6 +286,22 @@ cdef class FastMessage:
 
     def get_msgbuf(self):
         return self._msgbuf
+
+
+cdef class FastMessage(FrameHeader):
+    """A decoded frame of one of :data:`FAST_MESSAGES`: the header (:class:`FrameHeader`)
+    and (in each subclass) the message's fields under the dialect's names."""
+
+    #: the kind of the message's time stamp (convert.TimeKind)
+    cdef readonly object time_kind
+
+    @property
+    def t_us(self):
+        """The message's raw time stamp in µs (0 for SIM_STATE: it has none)."""
+        return self._t_us()
+
+    cdef object _t_us(self):
+        return 0
 
     def pack(self, mav, force_mavlink1=False):
         """The message framed again by pymavlink's ``mav`` (its system, component, sequence
@@ -519,39 +524,10 @@ def header_only_ids(names):
     return bytes(flags)
 
 
-cdef class HeaderOnly:
-    """A frame whose CRC checked, of a message its reader needs only the header of:
-    pymavlink's accessors for the header; the fields, if asked for after all, from
-    pymavlink's decode of the same bytes (:meth:`full`)."""
-
-    cdef readonly str name
-    cdef readonly int msgid
-    cdef readonly int sysid
-    cdef readonly int compid
-    cdef readonly int seq
-    cdef readonly bint signed
-    cdef object _msgbuf
-
-    def get_type(self):
-        return self.name
-
-    def get_msgId(self):
-        return self.msgid
-
-    def get_srcSystem(self):
-        return self.sysid
-
-    def get_srcComponent(self):
-        return self.compid
-
-    def get_seq(self):
-        return self.seq
-
-    def get_signed(self):
-        return self.signed
-
-    def get_msgbuf(self):
-        return self._msgbuf
+cdef class HeaderOnly(FrameHeader):
+    """A frame whose CRC checked, of a message its reader needs only the header of: the
+    header (:class:`FrameHeader`); the fields, if asked for after all, from pymavlink's
+    decode of the same bytes (:meth:`full`)."""
 
     def full(self):
         """pymavlink's message of the same frame (its CRC already checked)."""
@@ -609,6 +585,7 @@ def decode(data, Py_ssize_t start, Py_ssize_t length, bytes header_only=None):
     cdef Py_ssize_t end = hdr + mlen  # offset of the CRC
     cdef uint8_t extra
     cdef uint16_t crc
+    cdef HeaderOnly head
     if size == 0:
         if (
             header_only is None
@@ -621,7 +598,9 @@ def decode(data, Py_ssize_t start, Py_ssize_t length, bytes header_only=None):
         crc = _crc_accumulate(&extra, 1, _crc_accumulate(f + 1, end - 1, 0xFFFF))
         if crc != _u16(f + end) and not _ignore_crc:
             return BAD_CRC
-        return _header_only(data, f, start, length, n, msgid, sysid, compid, seq, signed)
+        head = HeaderOnly.__new__(HeaderOnly)
+        _set_header(head, _names_any[msgid], msgid, sysid, compid, seq, signed, data, f, start, length, n)
+        return head
     extra = _crc_extra[msgid]
     crc = _crc_accumulate(&extra, 1, _crc_accumulate(f + 1, end - 1, 0xFFFF))
     if crc != _u16(f + end) and not _ignore_crc:
@@ -633,7 +612,17 @@ def decode(data, Py_ssize_t start, Py_ssize_t length, bytes header_only=None):
         memcpy(payload, p, mlen)
         p = payload
     cdef FastMessage msg = _fields(msgid, p)
-    msg.name = _names[msgid]
+    _set_header(msg, _names[msgid], msgid, sysid, compid, seq, signed, data, f, start, length, n)
+    return msg
+
+
+cdef void _set_header(
+    FrameHeader msg, str name, int msgid, int sysid, int compid, int seq, bint signed,
+    object data, const uint8_t* f, Py_ssize_t start, Py_ssize_t length, Py_ssize_t n,
+):
+    """The header of the frame of ``length`` bytes at ``f`` (``start`` in ``data``, of
+    ``n`` bytes) into ``msg``."""
+    msg.name = name
     msg.msgid = msgid
     msg.sysid = sysid
     msg.compid = compid
@@ -643,22 +632,3 @@ def decode(data, Py_ssize_t start, Py_ssize_t length, bytes header_only=None):
         msg._msgbuf = data  # a datagram of one frame: no copy
     else:
         msg._msgbuf = PyBytes_FromStringAndSize(<const char*>f, length)
-    return msg
-
-
-cdef HeaderOnly _header_only(
-    object data, const uint8_t* f, Py_ssize_t start, Py_ssize_t length, Py_ssize_t n,
-    int msgid, int sysid, int compid, int seq, bint signed,
-):
-    cdef HeaderOnly msg = HeaderOnly.__new__(HeaderOnly)
-    msg.name = _names_any[msgid]
-    msg.msgid = msgid
-    msg.sysid = sysid
-    msg.compid = compid
-    msg.seq = seq
-    msg.signed = signed
-    if start == 0 and length == n and type(data) is bytes:
-        msg._msgbuf = data
-    else:
-        msg._msgbuf = PyBytes_FromStringAndSize(<const char*>f, length)
-    return msg
