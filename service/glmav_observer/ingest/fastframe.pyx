@@ -18,9 +18,9 @@ frame of one (MAVLink 1 or 2, signed or not) into a small extension object:
 A frame of any other message whose fields its reader does not need (``decode``'s
 ``header_only``: the ids an ingest reads nothing of but the header) has its CRC checked
 the same way and comes back as a :class:`HeaderOnly`: the header, and pymavlink's
-decode of the same bytes only if a field is asked for (8 µs of pymavlink's decode saved
-per frame: a vehicle's and its ground station's other telemetry, which the ingest counts
-and ignores).
+decode of the same bytes only if a field is asked for. That is a vehicle's and its
+ground station's other telemetry, which the ingest counts and ignores: framed in 0.3 µs
+against pymavlink's 4.2-5.1 µs (VFR_HUD, SYS_STATUS, GLOBAL_POSITION_INT).
 
 Signature and freshness (MAVLink 2 signing) stay with the framing
 (:class:`glmav_observer.ingest.framing.FrameDecoder`), after the CRC as before. Every
