@@ -137,11 +137,18 @@ def test_replay_rrd_on_a_full_disk_reports_failure_and_leaves_no_file_that_looks
     rrd = tmp_path / "out.rrd"
     ok = _replay_rrd(tlog, rrd, None)
     assert ok.returncode == 0, ok.stderr
+    size_first = rrd.stat().st_size
+    ok = _replay_rrd(tlog, rrd, None, "--force")
+    assert ok.returncode == 0, ok.stderr
     whole = rrd.read_bytes()
     assert [p.name for p in tmp_path.iterdir()] == ["out.rrd"]  # no temporary file left
-    # 1.28 MB measured for this 6 s flight; sizes vary by ~300 B between runs (Rerun's
-    # batching of the text rows), hence a cut 2,000 B before the end
-    for limit_bytes in (len(whole) // 3, len(whole) - 2_000):
+    # 1.32 MB measured for this 6 s flight; sizes vary by 300-500 B between runs (Rerun's
+    # batching of the text rows), hence a cut 2,000 B before the end. Now and then, on a
+    # loaded machine, one run comes out up to 2.9 kB larger (a 1,323,179 B file beside
+    # 1,320,000-1,320,470 B ones with an ArduPilot build on both cores): the smaller of two
+    # runs is the size the cut is measured from
+    typical = min(size_first, len(whole))
+    for limit_bytes in (typical // 3, typical - 2_000):
         # --force: the earlier recording may be replaced (issue 31: not without it)
         proc = _replay_rrd(tlog, rrd, limit_bytes, "--force")
         assert proc.returncode == 1, (limit_bytes, proc.stdout, proc.stderr)  # was 0
