@@ -62,13 +62,12 @@ from glmav_observer.ingest.rates import encode_interval_query, encode_rate_reque
 from glmav_observer.publish.sink import Sink
 from glmav_observer.reads import (
     READS_ALL,
-    READS_SCORED_VEHICLE,
-    READS_SCORING,
+    READS_NONE,
     Reads,
     ReadsGate,
     reads_of,
 )
-from glmav_observer.records import CONFIGS, HealthRecord, Record, TruthRecord, VelocityRecord
+from glmav_observer.records import CONFIGS, HealthRecord, Record
 
 logger = logging.getLogger(__name__)
 
@@ -145,8 +144,6 @@ class Service:
         self._capacity: dict[str, LinkCapacity] = {}
         #: the rate requests are checked at the next loop turn (a reboot, a reconnect)
         self._rates_now = False
-        #: per vehicle: its estimates scored against truth, where truth comes (the summary)
-        self._scorers: dict[int, TruthScorer] = {}
         #: what the estimators build (the union of the sinks' reads) and, per sink that
         #: reads less, the gate that hands it only its own (glmav_observer.reads)
         self.built: Reads = READS_ALL
@@ -156,34 +153,25 @@ class Service:
     # ------------------------------------------------------------------ outputs
     def _update_reads(self) -> None:
         """What the estimators build: the union of what the sinks read (a sink that does
-        not say reads everything; so does the ``on_records`` hook), and the service's own
-        truth; for a vehicle that sends truth, every estimate (the summary scores them:
-        :meth:`_reads_for`). A sink reading less than the most any vehicle gets is gated."""
+        not say reads everything; so does the ``on_records`` hook). A sink reading less is
+        gated. The summary's scoring against truth reads no record: each estimator feeds
+        its own :class:`~glmav_observer.evaluation.TruthScorer` (``score_truth``)."""
         #: sinks told of each configuration switch at its own time (``switch_at``)
         self._switch_sinks: list[Any] = [s for s in self.sinks if hasattr(s, "switch_at")]
-        built = READS_SCORING
+        built = READS_NONE
         for sink in self.sinks:
             built = built.union(reads_of(sink))
         if self._on_records is not None:
             built = READS_ALL
-        most = built.union(READS_SCORED_VEHICLE)
         self._gates = {
-            id(sink): ReadsGate(r, most)
+            id(sink): ReadsGate(r, built)
             for sink in self.sinks
-            if not (r := reads_of(sink)).covers(most)
+            if not (r := reads_of(sink)).covers(built)
         }
         if built != self.built:
             self.built = built
-            for sysid, est in self.estimators.items():
-                est.out.set_reads(self._reads_for(sysid))
-
-    def _reads_for(self, sysid: int) -> Reads:
-        """What vehicle ``sysid``'s estimator builds: :attr:`built`, and every estimate
-        once the vehicle has sent truth (a simulator: the summary's RMSE is over every
-        sample; a real vehicle never pays for it)."""
-        if sysid in self._scorers:
-            return self.built.union(READS_SCORED_VEHICLE)
-        return self.built
+            for est in self.estimators.values():
+                est.out.set_reads(built)
 
     @property
     def on_records(self) -> Callable[[list[Record]], None] | None:
@@ -288,10 +276,12 @@ class Service:
             self.config.estimation,
             input_counters=v.input_counters,
             rates_fn=v.rates.rates,
-            reads=self._reads_for(sysid),
+            reads=self.built,
+            score_truth=True,
         )
         if old is not None:  # a vehicle seen again after eviction keeps its history
             est.faults, est.switches = old.faults, old.switches
+            est.scorer = old.scorer  # and its score so far
         self.estimators[sysid] = est
         self._vehicle_link[sysid] = link_id
         self._vehicle_peer[sysid] = self.current_peer
@@ -322,15 +312,6 @@ class Service:
 
     def _publish(self, records: list[Record]) -> None:
         self.records += len(records)
-        # a scorer is attached to a vehicle at its first truth record (a simulator's);
-        # until some vehicle sends truth (a real one never does) nothing is scored
-        if self._scorers:
-            self._score(records)
-        else:
-            for r in records:
-                if type(r) is TruthRecord:
-                    self._score(records)
-                    break
         gates = self._gates
         for sink in list(self.sinks):
             try:
@@ -347,24 +328,6 @@ class Service:
                 self._sink_failed(sink, err)
         if self._on_records is not None:
             self._on_records(records)
-
-    def _score(self, records: list[Record]) -> None:
-        """Score each vehicle's estimates against its truth, from its first truth record on
-        (attaching its :class:`TruthScorer` there; the summary reports them)."""
-        scorers = self._scorers
-        for r in records:
-            sc = scorers.get(r.sysid)
-            if sc is not None:
-                if type(r) is VelocityRecord:
-                    sc.add_estimate(r.config, r.t_boot_s, r.v_ned_mps)
-                elif type(r) is TruthRecord:
-                    sc.add_truth(r.t_boot_s, r.v_ned_mps)
-            elif type(r) is TruthRecord:
-                sc = scorers[r.sysid] = TruthScorer(skip_s=self.config.estimation.metrics_skip_s)
-                sc.add_truth(r.t_boot_s, r.v_ned_mps)
-                est = self.estimators.get(r.sysid)
-                if est is not None:  # scored from now on: every estimate built
-                    est.out.set_reads(self._reads_for(r.sysid))
 
     def _sink_failed(self, sink: Sink, err: BaseException) -> None:
         """Isolate a sink whose write raised: log, count, close it, keep the others going.
@@ -602,7 +565,7 @@ class Service:
     def summary(self) -> ServiceSummary:
         vehicles: dict[int, VehicleSummary] = {}
         for sysid, est in sorted({**self._retired, **self.estimators}.items()):
-            scorer = self._scorers.get(sysid) or TruthScorer()
+            scorer = est.scorer or TruthScorer()
             scored, worst = scorer.rmse(), scorer.max_abs()
             vehicles[sysid] = VehicleSummary(
                 sysid=sysid,

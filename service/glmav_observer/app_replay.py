@@ -219,7 +219,7 @@ def replay_flight_log(
             log = read_flight_log(path, velocity_source, gps_delay_s=gps_delay_s)  # type: ignore[arg-type]
         sysid = LOG_SYSID
         monitor = RateMonitor({}, window_s=config.ingest.rate_window_s)
-        est = VehicleEstimator(sysid, config.estimation, rates_fn=monitor.rates)
+        est = VehicleEstimator(sysid, config.estimation, rates_fn=monitor.rates, score_truth=True)
         accel_filter_hz = log.streams.params.get("INS_ACCEL_FILTER")
         if log.streams.format == "dataflash" and accel_filter_hz is not None:
             est.set_accel_filter_hz(accel_filter_hz)  # what its IMU messages went through

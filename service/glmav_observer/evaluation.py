@@ -8,8 +8,11 @@ than :data:`TRUTH_MAX_GAP_S` apart, or earlier than ``skip_s`` after the first e
 are not scored. Batch form :func:`errors_against_truth`, online form
 :class:`TruthScorer`, the interpolation itself :func:`interpolate_truth`.
 
-A layer just above the records (it imports nothing else of the service): the service
-attaches a :class:`TruthScorer` to a vehicle only once it sends truth. Replaying logs with
+A layer just above the records (it imports nothing else of the service): a vehicle's
+estimator (``VehicleEstimator(score_truth=True)``, as the service makes them) starts a
+:class:`TruthScorer` at its first truth sample and hands it every estimate of every
+configuration from then on, without building a record for it (:meth:`TruthScorer.
+add_estimates`). Replaying logs with
 injected faults, for the tests and benchmarks, is the test kit's
 (``glmav_testkit.fault_replay``).
 """
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -78,7 +82,10 @@ class TruthScorer:
         self._acc: dict[str, list[float]] = {}
         #: truth samples received at or after the skip (what the errors were scored against)
         self.truth_samples = 0
-        self._pending: collections.deque[tuple[float, str, Vec3]] = collections.deque()
+        #: estimates waiting for the truth sample after them: (t, configurations, NED v)
+        self._pending: collections.deque[tuple[float, Sequence[str], Sequence[Vec3]]] = (
+            collections.deque()
+        )
         self._t_first_s: float | None = None
         self._t_last_est_s = -math.inf
         self._truth: tuple[float, Vec3] | None = None  # the latest truth sample
@@ -98,6 +105,11 @@ class TruthScorer:
             self.add_truth(record.t_boot_s, record.v_ned_mps)
 
     def add_estimate(self, config: str, t_s: float, v_ned_mps: Vec3) -> None:
+        self.add_estimates(t_s, (config,), (v_ned_mps,))
+
+    def add_estimates(self, t_s: float, configs: Sequence[str], v_ned_mps: Sequence[Vec3]) -> None:
+        """Estimates of several configurations published at one time ``t_s`` (one step of
+        the estimator: the same as :meth:`add_estimate` for each in turn, in one call)."""
         if t_s > self._t_last_est_s:
             self._t_last_est_s = t_s
         elif t_s < self._t_last_est_s - self.RESET_BACKWARDS_S:
@@ -111,12 +123,17 @@ class TruthScorer:
         if b is not None and t_s <= b[0]:
             a = self._truth_prev
             if t_s == b[0]:
-                self._score(config, v_ned_mps, b[1])
+                v_truth = b[1]
             elif a is not None and a[0] <= t_s and b[0] - a[0] <= self.max_gap_s:
-                self._score(config, v_ned_mps, _lerp(a, b, t_s))
+                v_truth = _lerp(a, b, t_s)
+            else:
+                return
+            score = self._score
+            for config, v in zip(configs, v_ned_mps, strict=True):
+                score(config, v, v_truth)
             return
         p = self._pending
-        p.append((t_s, config, v_ned_mps))
+        p.append((t_s, configs, v_ned_mps))
         # what cannot be bracketed within max_gap_s any more (no truth since) goes
         if p[0][0] < t_s - self.max_gap_s:
             horizon = t_s - self.max_gap_s
@@ -135,14 +152,19 @@ class TruthScorer:
         new = (t_s, v_ned_mps)
         p = self._pending
         t_lerp, v_lerp = math.nan, v_ned_mps  # the truth at the last time interpolated
+        score = self._score
         while p and p[0][0] <= t_s:
-            te, config, ve = p.popleft()
+            te, configs, ves = p.popleft()
             if te == t_s:
-                self._score(config, ve, v_ned_mps)
+                v_truth = v_ned_mps
             elif last is not None and last[0] <= te and t_s - last[0] <= self.max_gap_s:
-                if te != t_lerp:  # the configurations of one step share their time
+                if te != t_lerp:  # the estimates of one step share their time
                     t_lerp, v_lerp = te, _lerp(last, new, te)
-                self._score(config, ve, v_lerp)
+                v_truth = v_lerp
+            else:
+                continue
+            for config, ve in zip(configs, ves, strict=True):
+                score(config, ve, v_truth)
         self._truth_prev, self._truth = last, new
 
     def _score(self, config: str, v_est: Vec3, v_truth: Vec3) -> None:

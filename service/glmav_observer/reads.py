@@ -128,11 +128,6 @@ LIVE_DEFAULT_RATES_HZ: dict[str, float] = {
     "truth": EVERY,
 }
 READS_LIVE_DEFAULT = Reads(LIVE_DEFAULT_RATES_HZ)
-#: The service's own: truth, to score the estimates where a simulator sends it ...
-READS_SCORING = Reads({"truth": EVERY})
-#: ... and, for a vehicle that sends truth (a simulator; a real vehicle has none), every
-#: estimate: the summary's RMSE against truth is over every sample, whatever is published
-READS_SCORED_VEHICLE = Reads({**dict.fromkeys(VELOCITY_STREAMS, EVERY), "truth": EVERY})
 
 
 def reads_of(sink: object) -> Reads:

@@ -82,6 +82,7 @@ from glmav_observer.estimation.seed import (
 )
 from glmav_observer.estimation.selection import ActiveSelection, SwitchEvent
 from glmav_observer.estimation.streams import StreamTiming
+from glmav_observer.evaluation import TruthScorer
 from glmav_observer.frames import rotate_flat
 from glmav_observer.ingest.samples import (
     AidingSample,
@@ -108,6 +109,8 @@ ACCEL_EVENT_HOLD_S = 5.0
 
 Vec3 = tuple[float, float, float]
 _NONE3: list[float | None] = [None, None, None]
+#: What the scorer scores at each step, in the order :meth:`_velocity_records` hands it.
+_SCORED: tuple[str, ...] = (*CONFIGS, "active")
 #: Per configuration (CONFIGS order): whether it has a lost (dead-reckoned) axis.
 _HAS_LOST_AXIS: tuple[bool, ...] = tuple(LOST_AXIS_OF_CONFIG[c] is not None for c in CONFIGS)
 
@@ -194,11 +197,15 @@ class VehicleEstimator:
         input_counters: Callable[[], Mapping[str, int]] | None = None,
         rates_fn: Callable[[float], dict[str, float]] | None = None,
         reads: Reads = READS_ALL,
+        *,
+        score_truth: bool = False,
     ) -> None:
         """``input_counters``: what the vehicle's input (ingest) counted, reported beside
         the estimator's own :attr:`counters` in health records; ``rates_fn``: its input
         rates at a vehicle time; ``reads``: the records its outputs read (the rest is not
-        built: :mod:`glmav_observer.reads`)."""
+        built: :mod:`glmav_observer.reads`); ``score_truth``: once the vehicle sends truth
+        (a simulator's SIM_STATE), every estimate is scored against it (:attr:`scorer`,
+        the service's summary) without building a record for it."""
         self.sysid = sysid
         self.cfg = config
         #: what the estimator counted (its own; the input's are reported by the input)
@@ -208,6 +215,10 @@ class VehicleEstimator:
         self.faults: list[FaultEvent] = []
         self.switches: list[SwitchEvent] = []
         self.out = RecordBuilder(sysid, config.health_rate_hz, reads)
+        self.score_truth = score_truth
+        #: every estimate of every configuration and ``active`` against truth, from the
+        #: vehicle's first truth sample on (with ``score_truth``; a real vehicle has none)
+        self.scorer: TruthScorer | None = None
         #: kept across restarts: what the vehicle's drag is does not change with a gap
         self.aiding = (
             LostAxisAiding(
@@ -316,7 +327,11 @@ class VehicleEstimator:
         """Consume one sample of this vehicle; return the records it produces."""
         out: list[Record] = []
         if isinstance(s, TruthSample):
-            # scored against the estimates by the service (evaluation.TruthScorer)
+            if self.score_truth:
+                sc = self.scorer
+                if sc is None:  # scored from now on: every estimate at every IMU sample
+                    sc = self.scorer = TruthScorer(skip_s=self.cfg.metrics_skip_s)
+                sc.add_truth(s.t_boot_s, s.v_ned_mps)
             self.out.truth(s, out)
             return out
         if isinstance(s, AidingSample):
@@ -386,11 +401,13 @@ class VehicleEstimator:
                 sel = self.sel
                 aiding_runs = self.aiding is not None and sel.lost_idx is not None
                 # the state the records' path moves at every step (a switch's jump, the
-                # active estimate's aided offset), or a record due: else nothing is built
+                # active estimate's aided offset), a record due or the estimates scored:
+                # else nothing is built
                 if (
                     self.out.velocity_due(t, aiding_runs)
                     or sel.pending is not None
                     or (aiding_runs and self.cfg.aero_active)
+                    or self.scorer is not None
                 ):
                     self._velocity_records(out)
                 if self.out.health_due(t):
@@ -899,6 +916,8 @@ class VehicleEstimator:
             t, body, ned_l, n_faulty, sigma, sel.config, a_ned, a_sigma, out, a_body, a_health,
             self._drift_sigma(t),
         )  # fmt: skip
+        if self.scorer is not None:  # every configuration's estimate and active's
+            self.scorer.add_estimates(t, _SCORED, (*ned_l, a_ned))
         if st is not None and j is not None:
             v_aided = [a_dr[0], a_dr[1], a_dr[2]]
             v_aided[j] = st.v_mps

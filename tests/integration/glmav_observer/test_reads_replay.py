@@ -22,8 +22,8 @@ from glmav_observer.app import Service
 from glmav_observer.app_summary import ServiceSummary
 from glmav_observer.config import ServiceConfig
 from glmav_observer.ingest.framing import FrameCounters, iter_tlog
-from glmav_observer.reads import EVERY, READS_SCORING, Reads, next_due_s
-from glmav_observer.records import HealthRecord, Record, TruthRecord, VelocityRecord
+from glmav_observer.reads import EVERY, Reads, next_due_s
+from glmav_observer.records import HealthRecord, Record, VelocityRecord
 from glmav_testkit.fault_replay import FaultInjector, VelocityFault
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ardupilot_sitl"
@@ -70,8 +70,7 @@ def _replay(messages: list[tuple[Any, float]], sink: _Collect) -> tuple[Service,
 def runs() -> tuple[_Collect, _Collect, ServiceSummary, ServiceSummary]:
     data = lzma.decompress((DATA / "a_quad_wind.tlog.xz").read_bytes())
     # a 1 m/s bias on east from 70 s to 80 s: an isolation, a switch and a recovery;
-    # without its SIM_STATE: a vehicle that sends truth gets every estimate built (the
-    # summary scores them), as a real vehicle never does
+    # without its SIM_STATE: a real vehicle's stream
     inject = FaultInjector([VelocityFault(1, "bias", 70.0, 80.0, 1.0)])
     messages = []
     for r in iter_tlog(data, FrameCounters()):
@@ -84,7 +83,7 @@ def runs() -> tuple[_Collect, _Collect, ServiceSummary, ServiceSummary]:
     service, s_live = _replay(messages, live)
     # the live run built what its sink reads, and no more (no gate held anything back)
     assert service.records == len(live.records)
-    assert service.estimators[1].out.reads == LIVE.union(READS_SCORING)
+    assert service.estimators[1].out.reads == LIVE
     return full, live, s_full, s_live
 
 
@@ -148,21 +147,37 @@ def test_health_at_its_rate_and_at_every_decision(runs: tuple[Any, ...]) -> None
 
 def test_a_vehicle_that_sends_truth_is_scored_on_every_estimate() -> None:
     """A simulator's vehicle (SIM_STATE): the summary's RMSE is over every sample whatever
-    the outputs read (the same figures as with a sink that reads everything), while the
-    sink still gets only its own rates."""
+    the outputs read (the same figures as with a sink that reads everything), and no
+    record is built for it: the estimator hands its scorer the estimates, the service
+    builds what the sink reads and no more."""
     data = lzma.decompress((DATA / "a_quad_wind.tlog.xz").read_bytes())
     # (about 45 s of the flight: its first 20 s are before the EKF's first estimate)
     messages = [(r.msg, r.t_host_us * 1e-6) for r in iter_tlog(data, FrameCounters())][:20_000]
     full, live = _Collect(), _Collect(LIVE)
-    _, s_full = _replay(messages, full)
+    service_full, s_full = _replay(messages, full)
     service, s_live = _replay(messages, live)
     assert s_full.vehicles[1].truth_samples > 1000  # the prefix is long enough to score
     assert s_live.vehicles[1].rmse_ned_mps == s_full.vehicles[1].rmse_ned_mps
-    # every estimate is built from the first truth sample on (health stays at its rate)
-    t_truth = next(r.t_boot_s for r in full.records if type(r) is TruthRecord)
-    n_health = sum(1 for r in full.records if type(r) is HealthRecord)
-    n_scored = sum(1 for r in full.records if r.t_boot_s >= t_truth) - n_health
-    n_health_live = sum(1 for r in live.records if type(r) is HealthRecord)  # all built
-    assert service.records - n_health_live >= n_scored
-    built = _stream(full.records, "full")
-    assert _stream(live.records, "full") == _decimate(built, 10.0)  # the sink: gated
+    assert s_live.vehicles[1].max_abs_error_ned_mps == s_full.vehicles[1].max_abs_error_ned_mps
+    # every estimate scored: each configuration's, at every IMU sample from the first
+    # truth sample on, as many as the sink that reads everything got after the skip
+    scorer, scorer_full = service.estimators[1].scorer, service_full.estimators[1].scorer
+    assert scorer is not None and scorer_full is not None
+    # (truth comes from the start, the first estimate once the EKF's velocity does: the
+    # skip counts from it)
+    t_first = _stream(full.records, "full")[0].t_boot_s
+    skip_s = ServiceConfig().estimation.metrics_skip_s
+    for config in ("full", "c2", "active"):
+        every = [r for r in _stream(full.records, config) if r.t_boot_s >= t_first + skip_s]
+        assert scorer.n(config) == scorer_full.n(config)
+        # scored: the records after the skip that truth brackets (SIM_STATE comes at the
+        # IMU's 50 Hz with every sample: all but those after the last truth sample)
+        assert len(every) - 5 <= scorer.n(config) <= len(every)
+        if LIVE.rate(config) == 10.0:  # five times what the sink reads at 10 Hz
+            assert scorer.n(config) > 4 * len(_stream(live.records, config))
+    # what the service built is what the sink got: nothing for the scoring
+    assert service.records == len(live.records)
+    # ... at its rate: the same records as the full-rate ones decimated, numbered as built
+    got, want = _stream(live.records, "full"), _decimate(_stream(full.records, "full"), 10.0)
+    assert [r._replace(seq=0) for r in got] == [r._replace(seq=0) for r in want]
+    assert [r.seq for r in got] == list(range(1, len(got) + 1))
