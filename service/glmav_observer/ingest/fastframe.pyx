@@ -632,3 +632,44 @@ cdef void _set_header(
         msg._msgbuf = data  # a datagram of one frame: no copy
     else:
         msg._msgbuf = PyBytes_FromStringAndSize(<const char*>f, length)
+
+
+def tlog_run(bytes data, Py_ssize_t p, bytes header_only, record, Py_ssize_t max_n):
+    """The records of a ``.tlog`` image (an 8-byte big-endian µs time stamp, then a
+    frame) from offset ``p`` on, as long as each frame is whole and :func:`decode` gives
+    a message (a :class:`FastMessage`, or a :class:`HeaderOnly` by ``header_only``), at
+    most ``max_n`` of them: ``(records, p)``, each record ``record(t_us, msg, offset)``,
+    and the offset of the first record not taken. Whatever stops the run (a frame of
+    another message, a bad CRC, unknown incompatibility flags, a broken header, the end
+    of the data) is left at ``p`` for the caller's full path
+    (:func:`glmav_observer.ingest.framing.iter_tlog`), which decides and counts it."""
+    cdef Py_ssize_t n = PyBytes_GET_SIZE(data), q, length
+    cdef const uint8_t* buf = <const uint8_t*>PyBytes_AS_STRING(data)
+    cdef const uint8_t* f
+    cdef uint64_t t_us
+    cdef int k
+    out = []
+    while p + 8 < n and len(out) < max_n:
+        q = p + 8
+        f = buf + q
+        if f[0] == MAGIC_V2:
+            if n - q < 3 or f[2] & ~1:  # incomplete, or incompatibility flags unknown
+                break
+            length = 12 + f[1] + (SIGNATURE_LEN if f[2] & 1 else 0)
+        elif f[0] == MAGIC_V1:
+            if n - q < 2:
+                break
+            length = 8 + f[1]
+        else:
+            break
+        if q + length > n:
+            break
+        msg = decode(data, q, length, header_only)
+        if msg is None or msg is BAD_CRC:
+            break
+        t_us = 0
+        for k in range(8):
+            t_us = (t_us << 8) | buf[p + k]
+        out.append(record(t_us, msg, p))
+        p = q + length
+    return out, p

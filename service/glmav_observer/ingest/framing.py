@@ -40,7 +40,7 @@ import struct
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink_dialect
 
@@ -60,6 +60,8 @@ _HEADER_V2 = 10
 _SIGNATURE_LEN = 13
 _IFLAG_SIGNED = 0x01
 _TLOG_STAMP = struct.Struct(">Q")
+#: Records decoded in one compiled run of ``iter_tlog`` (the frames counted at its end)
+_TLOG_RUN = 1024
 
 #: The dialect's message class, for type hints (pymavlink ships no stubs).
 MavMessage = Any
@@ -373,9 +375,11 @@ class FrameDecoder:
         return out, p, quiet
 
 
-@dataclass(frozen=True, slots=True)
-class TlogRecord:
-    """One decoded frame of a ``.tlog`` with its host timestamp (µs since the UNIX epoch)."""
+class TlogRecord(NamedTuple):
+    """One decoded frame of a ``.tlog`` with its host timestamp (µs since the UNIX epoch).
+
+    A named tuple: built once per frame of a replay, in a third of a frozen dataclass's
+    time."""
 
     t_host_us: int
     msg: MavMessage
@@ -398,6 +402,9 @@ def iter_tlog(
     dec = FrameDecoder(datagram=True, counters=FrameCounters(), fields_of=fields_of)
     n = len(data)
     p = 0
+    # the common case compiled (fastframe.tlog_run): whole frames that fastframe decodes,
+    # in runs; the first record it leaves is decided (and counted) by the path below
+    run = type(data) is bytes
 
     def frame_at(q: int) -> tuple[int | None, MavMessage | None, str | None]:
         if q >= n or data[q] not in (MAGIC_V1, MAGIC_V2):
@@ -409,6 +416,17 @@ def iter_tlog(
         return length, msg, reason
 
     while p + 8 < n:
+        if run:
+            recs, p = fastframe.tlog_run(data, p, dec._header_only, TlogRecord, _TLOG_RUN)
+            k = 0  # counted as handed out, as the records below are (a consumer may stop)
+            try:
+                for rec in recs:
+                    k += 1
+                    yield rec
+            finally:
+                ctr.add("frames_ok", k)
+            if p + 8 >= n:
+                break
         (t_us,) = _TLOG_STAMP.unpack_from(data, p)
         length, msg, reason = frame_at(p + 8)
         if msg is not None and length is not None:
