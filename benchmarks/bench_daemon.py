@@ -4,8 +4,8 @@ Stream: the SITL's own MAVLink stream (``cruise`` scenario, default rates: HIGHR
 SCALED_IMU, RAW_IMU 250 Hz each, ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz, SIM_STATE
 50 Hz, one frame per datagram), taken from a ``--tlog`` of ``glmav-sitl run``; measured
 twice: without SIM_STATE (what a real vehicle sends: the headline) and with it (a
-simulator's stream: once a vehicle sends truth the service builds every estimate and
-scores it, which a real vehicle never pays for).
+simulator's stream: once a vehicle sends truth the service scores every estimate at
+every IMU sample for its summary, which a real vehicle never pays for).
 
 1. Throughput. Batches of datagrams are sent over UDP loopback into a socket's receive
    buffer, then drained and timed: (a) the service (``Service.feed_bytes``: framing,
@@ -223,10 +223,11 @@ def _config(tag: str) -> Any:
 #: SIM_STATE's message id: the simulator's truth, which no real vehicle sends
 SIM_STATE_MSGID = 108
 #: the two streams measured: what a real vehicle sends (the headline), and the simulator's
-#: own with its truth (for a vehicle that sends truth the service builds and scores every
-#: estimate, ``app.Service._reads_for``: a simulator pays for its summary's RMSE)
+#: own with its truth (for a vehicle that sends truth the estimator scores every estimate
+#: at every IMU sample, ``VehicleEstimator.scorer``: a simulator pays for its summary's
+#: RMSE)
 REAL = "a real vehicle's stream (no SIM_STATE)"
-SIMULATOR = "the simulator's stream with SIM_STATE (every estimate built and scored)"
+SIMULATOR = "the simulator's stream with SIM_STATE (every estimate scored)"
 
 
 def msgid_of(frame: bytes) -> int:
