@@ -11,11 +11,11 @@ from collections import Counter
 from types import SimpleNamespace
 
 import pytest
-from benchmarks.corpus import DATA, HELDOUT, best_fit_lag_s
+from benchmarks.corpus import DATA, HELDOUT, best_fit_lag_s, held_rmse
 
 from glmav_observer.ingest.framing import iter_tlog
 from glmav_observer.records import TruthRecord, VelocityRecord
-from glmav_testkit.fault_replay import RecordCollector, read_log_bytes
+from glmav_testkit.fault_replay import RecordCollector, Series, read_log_bytes
 
 FLIGHTS = sorted(p.name.split(".")[0] for p in HELDOUT.glob("*.tlog.xz"))
 
@@ -86,3 +86,30 @@ def test_best_fit_lag_finds_a_known_delay(delay_s: float) -> None:
     # minimum by far less than a grid step
     assert lag == pytest.approx(delay_s, abs=0.0011)
     assert best_fit_lag_s(r, "active") is None  # no such series
+
+
+def test_autopilot_held_at_the_estimates_instants() -> None:
+    """``held_rmse``: the autopilot's velocity as its consumer has it at full's instants.
+    Truth v_n(t) = t m/s; the autopilot exact at 10 Hz; full at 50 Hz. Held, the error at
+    a record 0, 20, 40, 60 or 80 ms after the latest autopilot sample is that age (1 m/s²
+    of acceleration), each age equally often: RMSE √(mean of the squared ages) = √0.0024
+    m/s; east and down constant: 0."""
+    c = RecordCollector()
+    for k in range(1001):  # truth at 100 Hz over 10 s
+        c.truth.t_s.append(k / 100)
+        c.truth.v_ned_mps.append((k / 100, 0.0, 0.0))
+    m = c.series.setdefault("measurement", Series())
+    for k in range(101):
+        m.t_s.append(k / 10)
+        m.v_ned_mps.append((k / 10, 0.0, 0.0))
+    full = c.series.setdefault("full", Series())
+    for k in range(500):  # 0 .. 9.98 s: every age 100 times
+        full.t_s.append(k / 50)
+        full.v_ned_mps.append((k / 50, 0.0, 0.0))
+    r = SimpleNamespace(collector=c, skip_s=0.0)
+    held = held_rmse(r)
+    assert held is not None
+    # float time stamps (k/50 against k/10) put an age off by at most 1e-15 s
+    assert held[0] == pytest.approx(math.sqrt(0.0024), abs=1e-12)
+    assert held[1] == 0.0 and held[2] == 0.0
+    assert held_rmse(r, "active") is None  # no such series
