@@ -129,7 +129,8 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"{result['repeats']} round-robin repeats per flight; `replay` = what "
         "`glmav-observer replay LOG` runs (default configuration, scoring against "
         "SIM_STATE, no output file); `mavutil` = a bare `recv_msg()` loop over the same "
-        "file (the baseline); `frames` = framing and decoding alone."
+        "file (the baseline); `frames` = framing and decoding alone. Where the time "
+        "goes, and the history: docs/benchmarks/bench_replay.md."
         f"{label}\n\n" + format_goals(result["goals"]) + "\n\n" + format_table(result["rows"])
     )
 
