@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.common import format_table, goal, main_for
+from benchmarks.down_floor import latest_arrived
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardupilot_sitl"
 HELDOUT = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardupilot_sitl_heldout"
@@ -94,7 +95,7 @@ def held_rmse(r: Any, at: str = "full") -> Any:
     t, _ = s.arrays()
     t = t[t >= t[0] + r.skip_s]
     tm, vm = m.arrays()
-    k = np.searchsorted(tm, t, side="right") - 1
+    k = latest_arrived(tm, t)
     ok = k >= 0
     tt, vt = r.collector.truth.arrays()
     return rmse(errors_against_truth(t[ok], vm[k[ok]], tt, vt)[1])

@@ -425,8 +425,8 @@ def iter_tlog(
                     yield rec
             finally:
                 ctr.add("frames_ok", k)
-            if p + 8 >= n:
-                break
+            if len(recs) == _TLOG_RUN or p + 8 >= n:
+                continue  # a full run: the next one compiled too; or the end
         (t_us,) = _TLOG_STAMP.unpack_from(data, p)
         length, msg, reason = frame_at(p + 8)
         if msg is not None and length is not None:

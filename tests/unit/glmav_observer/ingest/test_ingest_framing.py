@@ -135,7 +135,7 @@ def test_tlog_compiled_runs_equal_the_frame_by_frame_path(real_tlogs: Path) -> N
             assert compiled == reference
             recs, counts = compiled
             assert counts["frames_ok"] == len(recs) > 10_000
-    # the damage is seen: rejections of every kind the path counts, and resyncs
+    # the damage is seen: CRC rejections by the thousand, and resyncs
     _, counts = _tlog_outcome(bytes(damaged), None)
     assert counts["bad_crc"] > 1000 and counts["tlog_resync_bytes"] > 0
 
