@@ -2,7 +2,8 @@
 
 The service's layers, lowest first (a module may import its own layer and those below):
 
-    0 _version, frames, logs          constants, rotations, logging setup
+    0 _version, frames, logs,         constants, rotations, logging setup, the finder that
+      _compiled                       never runs a stale compiled module
     1 configurations                  the table of sensor-failure configurations
     2 records                         what the service publishes
     3 reads, evaluation               what a sink reads; error against truth (the scorer)
@@ -35,6 +36,7 @@ LAYERS: dict[str, int] = {
     "frames": 0,
     "rotation": 0,  # the compiled E (13) and E v (frames re-exports them)
     "logs": 0,
+    "_compiled": 0,  # imports nothing of the project; the package installs it first
     "configurations": 1,
     "records": 2,
     "reads": 3,
