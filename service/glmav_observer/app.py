@@ -68,6 +68,7 @@ from glmav_observer.reads import (
     reads_of,
 )
 from glmav_observer.records import CONFIGS, HealthRecord, Record
+from glmav_observer.stop import set_from_signal_handler
 
 logger = logging.getLogger(__name__)
 
@@ -672,7 +673,7 @@ def stop_on_signals(stop: threading.Event) -> Iterator[None]:
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         logger.info("stopping", extra={"signal": signal.Signals(signum).name})
-        stop.set()
+        set_from_signal_handler(stop)
 
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):

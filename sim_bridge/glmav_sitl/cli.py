@@ -22,6 +22,7 @@ from glmav_sitl.mavlink.links import LinkError
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.runner import parse_speed, run
 from glmav_sitl.scenario import SENSOR_PROFILES, load_scenario, load_sitl_config, scenario_names
+from glmav_sitl.stop import set_from_signal_handler
 from glmav_toml import ConfigError
 
 log = logging.getLogger("glmav_sitl")
@@ -161,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     stop = threading.Event()
 
     def _on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        set_from_signal_handler(stop)
 
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)

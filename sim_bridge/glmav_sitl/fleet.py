@@ -64,6 +64,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from glmav_sitl.fleet_send import monotonic_s, send_window
 from glmav_sitl.mavlink.links import Link, LinkError, TcpClientLink, UdpLink, open_link
+from glmav_sitl.stop import set_from_signal_handler
 
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
@@ -626,7 +627,7 @@ def main(ns: argparse.Namespace) -> int:
     stop = threading.Event()
 
     def _on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        set_from_signal_handler(stop)
 
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)

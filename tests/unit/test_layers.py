@@ -3,7 +3,7 @@
 The service's layers, lowest first (a module may import its own layer and those below):
 
     0 _version, frames, logs,         constants, rotations, logging setup, the finder that
-      _compiled                       never runs a stale compiled module
+      _compiled, stop                 never runs a stale compiled module, stopping on signals
     1 configurations                  the table of sensor-failure configurations
     2 records                         what the service publishes
     3 reads, evaluation               what a sink reads; error against truth (the scorer)
@@ -37,6 +37,7 @@ LAYERS: dict[str, int] = {
     "rotation": 0,  # the compiled E (13) and E v (frames re-exports them)
     "logs": 0,
     "_compiled": 0,  # imports nothing of the project; the package installs it first
+    "stop": 0,  # setting a stop event from a signal handler
     "configurations": 1,
     "records": 2,
     "reads": 3,

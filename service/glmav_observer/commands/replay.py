@@ -91,6 +91,7 @@ def main(args: argparse.Namespace) -> int:
     from glmav_observer.ingest.logfiles.tlog import check_tlog
     from glmav_observer.publish.file_sink import FileSinkError
     from glmav_observer.publish.output_files import check_output_target
+    from glmav_observer.stop import set_from_signal_handler
     from glmav_toml import ConfigError
 
     log = Path(args.log)
@@ -137,7 +138,7 @@ def main(args: argparse.Namespace) -> int:
 
     def on_signal(signum: int, _frame: object) -> None:
         stopped_by.append(signum)
-        stop.set()
+        set_from_signal_handler(stop)
 
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     previous = {sig: signal.signal(sig, on_signal) for sig in signals}

@@ -25,6 +25,7 @@ from glmav_observer.publish.zenoh_config import (
     load_zenoh_config,
     open_session,
 )
+from glmav_observer.stop import set_from_signal_handler
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 _DEFAULT_ROUTER_JSON5 = '{ mode: "router", scouting: { multicast: { enabled: false } } }'
@@ -67,7 +68,7 @@ def main(args: argparse.Namespace) -> int:
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
-        stop.set()
+        set_from_signal_handler(stop)
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
