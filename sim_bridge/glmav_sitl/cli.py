@@ -11,18 +11,16 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import signal
 import sys
 import threading
 from collections.abc import Sequence
-from types import FrameType
 
 from glmav_sitl.config import packaged_files
 from glmav_sitl.mavlink.links import LinkError
 from glmav_sitl.params import load_vehicle_params
 from glmav_sitl.runner import parse_speed, run
 from glmav_sitl.scenario import SENSOR_PROFILES, load_scenario, load_sitl_config, scenario_names
-from glmav_sitl.stop import set_from_signal_handler
+from glmav_sitl.stop import stop_on_signals
 from glmav_toml import ConfigError
 
 log = logging.getLogger("glmav_sitl")
@@ -160,12 +158,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"glmav-sitl: {e}", file=sys.stderr)
         return 2
     stop = threading.Event()
-
-    def _on_signal(signum: int, frame: FrameType | None) -> None:
-        set_from_signal_handler(stop)
-
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    stop_on_signals(stop)
     log.info(
         "flying %s -> %s",
         f"for a ground station, {profile or 'ideal'} sensors"

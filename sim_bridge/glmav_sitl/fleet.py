@@ -56,7 +56,6 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -64,7 +63,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from glmav_sitl.fleet_send import monotonic_s, send_window
 from glmav_sitl.mavlink.links import Link, LinkError, TcpClientLink, UdpLink, open_link
-from glmav_sitl.stop import set_from_signal_handler
+from glmav_sitl.stop import stop_on_signals
 
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
@@ -610,7 +609,6 @@ def record_tlog(
 
 def main(ns: argparse.Namespace) -> int:
     """The ``glmav-sitl fleet`` command (options from :mod:`glmav_sitl.cli`)."""
-    import signal
 
     try:
         logs = [load_tlog(p) for p in ns.tlog]
@@ -625,12 +623,7 @@ def main(ns: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     stop = threading.Event()
-
-    def _on_signal(signum: int, frame: FrameType | None) -> None:
-        set_from_signal_handler(stop)
-
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    stop_on_signals(stop)
     try:
         summary = run_fleet(
             logs,

@@ -1,22 +1,26 @@
-"""Stopping on a signal without deadlocking.
+"""Stopping the simulator on SIGINT and SIGTERM.
 
-Python runs a signal handler in the main thread between two bytecodes, which can be
-inside that thread's own ``threading.Event.wait()`` while it holds the event's lock (at
-the start and the end of every wait). ``Event.set()`` takes the same lock, which is not
-re-entrant: called from the handler there, it waits for itself forever, and the process
-hangs on SIGTERM until it is killed (the tail of its outputs lost). A handler therefore
-hands the ``set()`` to a short-lived thread, which takes the lock once the main thread
-lets go of it (within the wait it was in).
+The handler hands ``stop.set()`` to a short-lived thread. Called in the handler itself,
+which Python runs in the main thread between two bytecodes, possibly inside that thread's
+own ``stop.wait()`` with the event's (not re-entrant) lock held, it would wait for itself
+forever and the simulator would hang until killed (glmav_observer/stop.py says the same of
+the service).
 """
 
 from __future__ import annotations
 
 import contextlib
+import signal
 import threading
+from types import FrameType
 
 
-def set_from_signal_handler(event: threading.Event) -> None:
-    """Set ``event`` from a signal handler (see the module's docstring)."""
-    # RuntimeError: the interpreter is shutting down, nothing left to stop
-    with contextlib.suppress(RuntimeError):
-        threading.Thread(target=event.set, name="stop-on-signal", daemon=True).start()
+def stop_on_signals(stop: threading.Event) -> None:
+    """From now on SIGINT and SIGTERM set ``stop`` (call it from the main thread)."""
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        with contextlib.suppress(RuntimeError):  # the interpreter is shutting down
+            threading.Thread(target=stop.set, name="stop-on-signal", daemon=True).start()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)

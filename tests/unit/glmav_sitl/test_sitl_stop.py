@@ -8,9 +8,9 @@ import sys
 
 _CODE = """
 import os, signal, threading
-from glmav_sitl.stop import set_from_signal_handler
+from glmav_sitl.stop import stop_on_signals
 stop = threading.Event()
-signal.signal(signal.SIGTERM, lambda signum, frame: set_from_signal_handler(stop))
+stop_on_signals(stop)  # glmav-sitl run's and fleet's
 with stop._cond:  # as at the start and the end of the run loop's stop.wait(lag)
     os.kill(os.getpid(), signal.SIGTERM)
     for _ in range(10_000):  # the handler runs at one of these bytecodes
