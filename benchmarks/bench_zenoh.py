@@ -216,11 +216,13 @@ def _jstr(x: str | None) -> str:
 def _text_from_fields(record: VelocityRecord) -> bytes:
     """JSON text built straight from the tuple's fields (float repr, cached string
     literals); falls back to the stdlib for a NaN, an infinity or a numpy repr."""
-    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema) = record
+    (sysid, config, t, b, v, lost, health, seq, src, sigma, schema, dr, s_ned) = record
     nums = (
         f'{t!r},"v_body_mps":[{b[0]!r},{b[1]!r},{b[2]!r}],"v_ned_mps":[{v[0]!r},{v[1]!r},{v[2]!r}]'
         f',"lost_axis":{_jstr(lost)},"health":{_jstr(health)},"seq":{seq:d}'
         f',"source_config":{_jstr(src)},"sigma_lost_mps":{"null" if sigma is None else repr(sigma)}'
+        f',"dead_reckoned_axes":[{",".join(_jstr(a) for a in dr)}],"sigma_ned_mps":'
+        + ("null" if s_ned is None else f"[{s_ned[0]!r},{s_ned[1]!r},{s_ned[2]!r}]")
     )
     if "n" in nums.replace("null", ""):  # nan, inf, np.float64(...)
         return _stdlib_payload(record)
@@ -240,7 +242,7 @@ _HEALTH_IDS = {h: i for i, h in enumerate(("ok", "dead_reckoning", "degraded", "
 
 
 def _struct_layout(record: VelocityRecord) -> bytes:
-    (sysid, config, t, b, v, lost, health, seq, _src, sigma, _schema) = record
+    (sysid, config, t, b, v, lost, health, seq, _src, sigma, _schema, _dr, _s_ned) = record
     return _STRUCT.pack(
         sysid, _CONFIG_IDS[config], _LOST_IDS[lost], _HEALTH_IDS[health], seq, t,
         b[0], b[1], b[2], v[0], v[1], v[2], math.nan if sigma is None else sigma,
@@ -302,8 +304,13 @@ def _per_call_us(fn: Callable[[Any], Any], items: list[Any]) -> float:
 
 def _encoders(records: list[VelocityRecord], repeats: int) -> list[dict[str, Any]]:
     candidates = _encoder_candidates()
-    for _, fn, _ in candidates:  # warm-up, and every candidate reads back the same object
+    baseline_fn = candidates[0][1]
+    for name, fn, _ in candidates:  # warm-up, and the JSON ones read back the same object
         _per_call_us(fn, records[:100])
+        if "json" in name.lower() or "JSON" in name:
+            for r in records[:100]:
+                if json.loads(fn(r)) != json.loads(baseline_fn(r)):
+                    raise AssertionError(f"{name}: not the same JSON object as the baseline")
     samples: dict[str, list[float]] = {name: [] for name, _, _ in candidates}
     for _ in range(repeats):  # interleaved: load hits every candidate alike
         for name, fn, _ in candidates:
