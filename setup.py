@@ -44,7 +44,7 @@ MODULES = [
 #: bench_replay.md). glmav_observer/_compiled.py runs a source instead of its compiled copy
 #: when the two differ (an edit not rebuilt yet). Left out: start-up, command-line and
 #: end-of-run code, the numpy oracle (estimation/observer.py), and estimation/fdi_change.py
-#: (Cython 3.2 emits C that does not compile for its tuple annotations; it runs once per
+#: (Cython 3.3 emits C that does not compile for its tuple annotations; it runs once per
 #: isolation).
 PY_MODULES = [
     f"glmav_observer.{m}"
