@@ -67,13 +67,11 @@ class SourceWhenStale(importlib.abc.MetaPathFinder):
         if recorded is None or not path:
             return None
         source = Path(path[0]) / (fullname.rpartition(".")[2] + ".py")
-        try:
-            actual = hashlib.sha256(source.read_bytes()).hexdigest()
-        except OSError:
+        if not source.is_file():
             return None  # no source beside it (a wheel without sources): the compiled copy
         if self.interpreted:
             reason = "requested"
-        elif actual != recorded:
+        elif hashlib.sha256(source.read_bytes()).hexdigest() != recorded:
             reason = "stale"
             logger.warning(
                 "%s runs interpreted: %s changed since the compiled core was built "

@@ -41,13 +41,14 @@ def test_every_module_the_build_compiled_runs_compiled() -> None:
         assert _compiled.is_compiled(module), f"{name} runs from {module.__file__}"
 
 
-def _run(code: str, **env: str) -> subprocess.CompletedProcess[str]:
+def _run(code: str, *args: str, interpreted: str = "0") -> subprocess.CompletedProcess[str]:
+    """``code`` in a fresh interpreter, compiled (``interpreted="0"``) or from source."""
     return subprocess.run(
-        [sys.executable, "-c", code],
+        [sys.executable, "-c", code, *args],
         capture_output=True,
         text=True,
-        timeout=120,
-        env={**os.environ, **env},
+        timeout=300,
+        env={**os.environ, _compiled.INTERPRETED_ENV: interpreted},
         check=True,
     )
 
@@ -95,14 +96,7 @@ sys.exit(main(["replay", sys.argv[1], "--out", sys.argv[2], "--no-progress"]))
     outs = {}
     for mode, env in (("compiled", "0"), ("interpreted", "1")):
         out = tmp_path / f"{mode}.jsonl"
-        subprocess.run(
-            [sys.executable, "-c", code, str(log), str(out)],
-            capture_output=True,
-            text=True,
-            timeout=300,
-            env={**os.environ, _compiled.INTERPRETED_ENV: env},
-            check=True,
-        )
+        _run(code, str(log), str(out), interpreted=env)
         outs[mode] = out.read_bytes()
     n_records = outs["compiled"].count(b"\n")
     # 130 s of flight: velocity records of 5 configurations at the output rate, health, events
