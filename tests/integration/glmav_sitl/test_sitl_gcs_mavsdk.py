@@ -78,6 +78,13 @@ def test_mavsdk_flies_the_simulator(free_udp_port: Callable[[], int]) -> None:
                 10.0,
                 "health: home, global and local position",
             )
+            # the position is another message again, GLOBAL_POSITION_INT (10 Hz): NaN until
+            # MAVSDK has handled the first one (CI once read it before, with the flags set)
+            _wait(
+                lambda: math.isfinite(tel.position().relative_altitude_m),
+                5.0,
+                "the first GLOBAL_POSITION_INT",
+            )
             assert not tel.armed() and not tel.in_air()
             assert tel.flight_mode() == FlightMode.HOLD
             # on the ground at home: GLOBAL_POSITION_INT (1e-7 deg, 1 mm) and HOME_POSITION
