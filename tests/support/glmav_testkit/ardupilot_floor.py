@@ -52,7 +52,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -204,4 +204,120 @@ def ardupilot_floor_model(
         velocity_rate_hz=velocity_rate_hz,
         velocity_sigma_mps=velocity_sigma_mps,
         drag_sigma_mps=math.sqrt(var_u),
+    )
+
+
+# --- the as-flown floor (issue 32): the oracle without the gift of a perfect drag law ---
+#
+# The oracle above is granted the drag law exactly: its only airspeed noise is RAW_IMU's
+# quantisation and SITL's white turbulence, which it averages down to a few mm/s. On the
+# flights the law does not hold that well: the thrust varies (momentum drag ∝ √T), the
+# heli's rotor flaps, the attitude the service has is the EKF's, and each of these leaves a
+# misfit that is *correlated over seconds* and so is not averaged away. The as-flown floor
+# grants the oracle the best constant law of the form (P1) (k, q and a body bias per
+# body axis, least squares over the flight against the truth), the mean wind at the
+# vehicle's height, and the statistics of what is left, the misfit: white noise plus a
+# first-order Gauss-Markov process on the airspeed it measures, which is (F1)-(F2)'s w
+# (``FloorModel.turbulence_*``), now measured instead of SITL's (white) turbulence.
+
+#: the vehicle is airborne (the law applies: no ground contact) above this height, m
+AIRBORNE_HEIGHT_M = 2.0
+#: the longest correlation time looked for, s (the misfit's autocovariance is read up to it;
+#: a longer one is taken as this: the floor grows with τ, so the cap is on the low side)
+MISFIT_MAX_TAU_S = 20.0
+
+
+@dataclass(frozen=True)
+class LawMisfit:
+    """The drag law's misfit on one earth axis, in airspeed units (m/s)."""
+
+    white_sigma_mps: float  # σ of its white part (per velocity sample)
+    slow_sigma_mps: float  # σ of its Gauss-Markov part
+    slow_tau_s: float  # the Gauss-Markov part's time constant, s
+
+
+def height_above_start_m(t_s: FloatArray, v_down_mps: FloatArray) -> FloatArray:
+    """The height above the first sample (the ground: the flights start landed), from the
+    truth's down velocity integrated (trapezoid rule), m."""
+    dh = -0.5 * (v_down_mps[1:] + v_down_mps[:-1]) * np.diff(t_s)
+    out: FloatArray = np.concatenate([[0.0], np.cumsum(dh)])
+    return out
+
+
+def law_misfit_ne_mps(
+    meta: dict[str, Any],
+    t_s: FloatArray,
+    *,
+    v_truth_ned_mps: FloatArray,
+    height_m: FloatArray,
+    e_body_to_ned: FloatArray,
+    f_mean_body_mps2: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Per velocity sample: whether it is usable (airborne, finite) and the drag law's
+    misfit on the n and e axes, m/s, shape (m, 2).
+
+    The body airspeed u = Eᵀ(v − w), w the sidecar's mean wind at the height (true
+    velocity, the EKF's attitude: what the service has); per body axis j ∈ {x, y} the law
+    f_j = −k_j u_j − q_j u_j|u_j| + b_j fitted by least squares over the usable samples;
+    its residual over the law's slope k_j + 2q_j|u_j| is an airspeed error, rotated to the
+    earth axes by E's horizontal block (tilt neglected: < 1 % at the flights' ≤ 10°)."""
+    wind = np.array(
+        [
+            (*mean_wind_ne_mps(wind_params_at(meta, float(t)), float(h)), 0.0)
+            for t, h in zip(t_s, height_m, strict=True)
+        ]
+    )
+    u = np.einsum("kji,kj->ki", e_body_to_ned, v_truth_ned_mps - wind)
+    ok = (height_m > AIRBORNE_HEIGHT_M) & np.all(np.isfinite(f_mean_body_mps2), axis=1)
+    if int(ok.sum()) < 10:
+        raise ValueError(f"{meta.get('name')}: fewer than 10 airborne samples")
+    err_body = np.zeros((len(t_s), 2))
+    for j in range(2):
+        a = np.column_stack([-u[:, j], -u[:, j] * np.abs(u[:, j]), np.ones(len(t_s))])
+        theta, *_ = np.linalg.lstsq(a[ok], f_mean_body_mps2[ok, j], rcond=None)
+        slope = np.maximum(theta[0] + 2.0 * theta[1] * np.abs(u[:, j]), 1e-3)
+        # f − f_law = −slope·δu: the airspeed error the law reads
+        err_body[:, j] = -(f_mean_body_mps2[:, j] - a @ theta) / slope
+    err_ne: FloatArray = np.einsum("kij,kj->ki", e_body_to_ned[:, :2, :2], err_body)
+    return ok, err_ne
+
+
+def misfit_statistics(err_mps: FloatArray, dt_s: float) -> LawMisfit:
+    """White σ, Gauss-Markov σ and τ of a misfit series (one axis, uniform samples dt_s
+    apart): with C(L) its autocovariance (mean removed: a constant part is learnt before
+    any loss), a white part adds to C(0) only and a Gauss-Markov part gives C(L) =
+    σ_m² exp(−L dt/τ); so σ_m² = C(1) (τ ≫ dt), σ_e² = C(0) − C(1), and τ the lag at
+    which C falls below C(1)/e (linearly interpolated), at most MISFIT_MAX_TAU_S."""
+    r = np.asarray(err_mps, dtype=np.float64)
+    r = r - float(np.mean(r))
+    n = len(r)
+    max_lag = min(int(MISFIT_MAX_TAU_S / dt_s), n // 3)
+    if max_lag < 2:
+        raise ValueError("too few samples for the misfit's statistics")
+    c = np.array([float(np.dot(r[lag:], r[: n - lag])) / (n - lag) for lag in range(max_lag + 1)])
+    c1 = max(float(c[1]), 0.0)
+    white = math.sqrt(max(float(c[0]) - c1, 0.0))
+    if c1 == 0.0:
+        return LawMisfit(white, 0.0, dt_s)
+    target = c1 / math.e
+    below = np.nonzero(c[2:] < target)[0]
+    if below.size == 0:
+        tau = MISFIT_MAX_TAU_S
+    else:
+        lag = int(below[0]) + 2
+        # between lag − 1 (≥ target) and lag (< target)
+        frac = (float(c[lag - 1]) - target) / (float(c[lag - 1]) - float(c[lag]))
+        tau = (lag - 1 + frac) * dt_s
+    return LawMisfit(white, math.sqrt(c1), tau)
+
+
+def as_flown_floor_model(oracle: FloorModel, misfit: LawMisfit) -> FloorModel:
+    """The oracle's model (``ardupilot_floor_model``) with the drag's airspeed noise as
+    measured on the flight: the misfit's white part for ε_u (it contains the quantisation
+    and the white turbulence the oracle models) and its Gauss-Markov part as w."""
+    return replace(
+        oracle,
+        drag_sigma_mps=misfit.white_sigma_mps,
+        turbulence_sigma_mps=misfit.slow_sigma_mps,
+        turbulence_time_constant_s=max(misfit.slow_tau_s, 1e-3),
     )
