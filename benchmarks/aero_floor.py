@@ -18,7 +18,7 @@ drag law (``glmav_testkit.ardupilot_floor.law_misfit_ne_mps``). It is granted th
 constant law of the frame model's form (k, q and a body bias per body axis, fitted over the
 flight against the truth), the mean wind at its height and the statistics of the law's
 misfit (white plus a Gauss-Markov part, measured on the flight), the misfit's values not.
-On the calm flights that misfit is 0.04-0.06 m/s correlated over 1.5-4 s (the service's
+On the calm flights that misfit is 0.03-0.06 m/s correlated over 1-3.5 s (the service's
 attitude is the EKF's; the thrust and the heli's flapping vary): the filter cannot average
 it away as it does the white quantisation the oracle is left with. On glmav-sitl flights
 the oracle's law is the simulator's own and its turbulence is measured in the

@@ -222,8 +222,8 @@ def ardupilot_floor_model(
 
 #: the vehicle is airborne (the law applies: no ground contact) above this height, m
 AIRBORNE_HEIGHT_M = 2.0
-#: the longest correlation time looked for, s (the misfit's autocovariance is read up to it;
-#: a longer one is taken as this: the floor grows with τ, so the cap is on the low side)
+#: the longest correlation time looked for, s (the misfit's autocovariance is read up to
+#: it; a longer one is taken as this: the flights' are 0.08-3.6 s)
 MISFIT_MAX_TAU_S = 20.0
 
 
@@ -284,31 +284,33 @@ def law_misfit_ne_mps(
 
 def misfit_statistics(err_mps: FloatArray, dt_s: float) -> LawMisfit:
     """White σ, Gauss-Markov σ and τ of a misfit series (one axis, uniform samples dt_s
-    apart): with C(L) its autocovariance (mean removed: a constant part is learnt before
+    apart). With C(L) its autocovariance (mean removed: a constant part is learnt before
     any loss), a white part adds to C(0) only and a Gauss-Markov part gives C(L) =
-    σ_m² exp(−L dt/τ); so σ_m² = C(1) (τ ≫ dt), σ_e² = C(0) − C(1), and τ the lag at
-    which C falls below C(1)/e (linearly interpolated), at most MISFIT_MAX_TAU_S."""
+    σ_m² exp(−L dt/τ) at every lag. So the decay from lag 1 on is the Gauss-Markov part's
+    alone: C(L_e) = C(1)/e at L_e = 1 + τ/dt (L_e interpolated linearly between lags),
+    σ_m² = C(1) exp(dt/τ) (at most C(0)) and σ_e² = C(0) − σ_m². A τ beyond
+    MISFIT_MAX_TAU_S is taken as that."""
     r = np.asarray(err_mps, dtype=np.float64)
     r = r - float(np.mean(r))
     n = len(r)
-    max_lag = min(int(MISFIT_MAX_TAU_S / dt_s), n // 3)
+    max_lag = min(int(MISFIT_MAX_TAU_S / dt_s) + 1, n // 3)
     if max_lag < 2:
         raise ValueError("too few samples for the misfit's statistics")
     c = np.array([float(np.dot(r[lag:], r[: n - lag])) / (n - lag) for lag in range(max_lag + 1)])
-    c1 = max(float(c[1]), 0.0)
-    white = math.sqrt(max(float(c[0]) - c1, 0.0))
-    if c1 == 0.0:
-        return LawMisfit(white, 0.0, dt_s)
+    c0, c1 = float(c[0]), float(c[1])
+    if c1 <= 0.0:  # nothing correlated from one sample to the next: all white
+        return LawMisfit(math.sqrt(c0), 0.0, dt_s)
     target = c1 / math.e
     below = np.nonzero(c[2:] < target)[0]
     if below.size == 0:
         tau = MISFIT_MAX_TAU_S
     else:
         lag = int(below[0]) + 2
-        # between lag − 1 (≥ target) and lag (< target)
+        # C(lag − 1) ≥ target > C(lag): L_e between them
         frac = (float(c[lag - 1]) - target) / (float(c[lag - 1]) - float(c[lag]))
-        tau = (lag - 1 + frac) * dt_s
-    return LawMisfit(white, math.sqrt(c1), tau)
+        tau = max(lag - 2 + frac, 1e-3) * dt_s
+    slow2 = min(c1 * math.exp(dt_s / tau), c0)
+    return LawMisfit(math.sqrt(c0 - slow2), math.sqrt(slow2), tau)
 
 
 def as_flown_floor_model(oracle: FloorModel, misfit: LawMisfit) -> FloorModel:

@@ -202,8 +202,8 @@ def test_the_as_flown_floor_on_the_calm_coax() -> None:
             got["misfit_white_sigma_mps"],
             got["misfit_slow_tau_s"],
         )
-        # calm: the law's misfit is slow, not white (measured slow 0.033/0.042 m/s over
-        # τ 2.5/1.3 s, white 0.007)
+        # calm: the law's misfit is slow, not white (measured slow 0.034/0.043 m/s over
+        # τ 2.5/1.2 s, white 0.006/0)
         assert slow > 3.0 * white and tau > 0.5, got
         # a slow misfit is not averaged away: the as-flown floor is far above the oracle's
         # (measured 12×), which averages its white noise down to mm/s
