@@ -1087,6 +1087,26 @@ def floor_section(result: dict[str, Any]) -> list[str]:
     ]
 
 
+def _not_aided_reason(c: dict[str, Any]) -> str:
+    """The first reason that applies to one loss (see :func:`_why_not_aided`)."""
+    reason = str(c["trust_reason"])
+    if float(c["aided_fraction"]) > 0.5:
+        return "aided > 50 %"
+    if not c["trusted"]:
+        if "not clearly" in reason:
+            return "not trusted: k not clearly > 0"
+        if "speed spread" in reason:
+            return "not trusted: speed barely varied"
+        if reason.startswith("changing"):
+            return "not trusted: recent outliers (changing)"
+        return "not trusted: other"
+    if c["stop_reason"]:
+        return f"stopped: {c['stop_reason']}"
+    if float(c["pm_fraction"]) == 0.0:
+        return "trusted, no pseudo-measurement accepted"
+    return "trusted, aided ≤ 50 %"
+
+
 def _why_not_aided(judged: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per ArduPilot set, the horizontal losses aided over half their time and, for the
     others, why not (the drag model's trust reason or the aided filter's stop reason)."""
@@ -1095,25 +1115,7 @@ def _why_not_aided(judged: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         counts: dict[str, int] = {}
         cs = [c for c in judged if c["set"] == set_name and c["axis"] != "d"]
         for c in cs:
-            reason = str(c["trust_reason"])
-            if float(c["aided_fraction"]) > 0.5:
-                key = "aided > 50 %"
-            elif not c["trusted"]:
-                key = (
-                    "not trusted: speed barely varied"
-                    if "speed spread" in reason and "not clearly" not in reason
-                    else "not trusted: k not clearly > 0"
-                    if "not clearly" in reason
-                    else "not trusted: recent outliers (changing)"
-                    if reason.startswith("changing")
-                    else "not trusted: other"
-                )
-            elif c["stop_reason"]:
-                key = f"stopped: {c['stop_reason']}"
-            elif float(c["pm_fraction"]) == 0.0:
-                key = "trusted, no pseudo-measurement accepted"
-            else:
-                key = "trusted, aided ≤ 50 %"
+            key = _not_aided_reason(c)
             counts[key] = counts.get(key, 0) + 1
         out += [
             {"set": set_name, "losses (n, e)": len(cs), "reason": k, "losses": v}

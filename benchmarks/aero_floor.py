@@ -107,13 +107,18 @@ def input_error_random_walk(fl: Flight) -> FloatArray:
     return out
 
 
+def _truth_at_velocity(fl: Flight) -> FloatArray:
+    """The truth's NED velocity at the velocity samples' times (linear interpolation)."""
+    out: FloatArray = np.column_stack(
+        [np.interp(fl.t_vel_s, fl.t_truth_s, fl.v_truth_ned_mps[:, i]) for i in range(3)]
+    )
+    return out
+
+
 def velocity_sigma_mps(fl: Flight) -> FloatArray:
     """Per NED axis, the RMS of the measured velocity against the truth (the healthy
     oracle's measurement noise)."""
-    truth = np.column_stack(
-        [np.interp(fl.t_vel_s, fl.t_truth_s, fl.v_truth_ned_mps[:, i]) for i in range(3)]
-    )
-    out: FloatArray = np.sqrt(np.mean((fl.v_meas_ned_mps - truth) ** 2, axis=0))
+    out: FloatArray = np.sqrt(np.mean((fl.v_meas_ned_mps - _truth_at_velocity(fl)) ** 2, axis=0))
     return out
 
 
@@ -179,9 +184,7 @@ def _misfit(fl: Flight, meta: dict[str, Any]) -> tuple[LawMisfit, LawMisfit]:
     key = id(fl)
     if key not in _MISFITS:
         t = fl.t_vel_s
-        v = np.column_stack(
-            [np.interp(t, fl.t_truth_s, fl.v_truth_ned_mps[:, i]) for i in range(3)]
-        )
+        v = _truth_at_velocity(fl)
         h = np.interp(t, fl.t_truth_s, height_above_start_m(fl.t_truth_s, fl.v_truth_ned_mps[:, 2]))
         ok, err = law_misfit_ne_mps(
             meta,

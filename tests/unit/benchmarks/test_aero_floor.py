@@ -19,6 +19,7 @@ from glmav_observer.estimation.aero.floor import (
     double_integrator_pvv_m2ps2,
     sigma_after_loss_mps,
 )
+from glmav_sitl.wind import WindConfig, WindModel
 from glmav_testkit.ardupilot_floor import (
     ardupilot_floor_model,
     frame_drag,
@@ -118,13 +119,13 @@ def test_the_input_errors_random_walk_is_recovered() -> None:
 def _gauss_markov(
     rng: np.random.Generator, n: int, dt_s: float, sigma: float, tau_s: float
 ) -> FloatArray:
-    """A stationary first-order Gauss-Markov series (exact discretisation)."""
-    a = math.exp(-dt_s / tau_s)
-    w = rng.normal(0.0, sigma * math.sqrt(1.0 - a * a), n)
-    out = np.empty(n)
-    out[0] = rng.normal(0.0, sigma)
-    for i in range(1, n):
-        out[i] = a * out[i - 1] + w[i]
+    """(n, 3) stationary first-order Gauss-Markov series, independent per column: glmav-sitl's
+    own turbulence process (exact discretisation) sampled every ``dt_s``."""
+    wind = WindModel(
+        WindConfig(turbulence_sigma_mps=(sigma, sigma, sigma), turbulence_time_constant_s=tau_s),
+        rng,
+    )
+    out: FloatArray = np.array([wind.update(i * dt_s) for i in range(n)])
     return out
 
 
@@ -133,7 +134,7 @@ def test_the_misfits_white_and_slow_parts_are_recovered() -> None:
     # τ 2 s), the shape of the calm flights' misfit with the wind flights' white part
     rng = np.random.default_rng(11)
     dt, n = 0.04, 90_000
-    r = rng.normal(0.0, 0.1, n) + _gauss_markov(rng, n, dt, 0.05, 2.0) + 0.3  # + a mean
+    r = rng.normal(0.0, 0.1, n) + _gauss_markov(rng, n, dt, 0.05, 2.0)[:, 0] + 0.3  # + a mean
     got = misfit_statistics(r, dt)
     # the variance of a Gauss-Markov series averaged over T has a relative spread of
     # ~√(2τ/T) = 2.4 %, so its σ ~1.2 %; the autocovariance's other lags alike: 10 % is
@@ -160,13 +161,9 @@ def test_the_law_misfit_is_read_through_the_fit_and_the_rotation() -> None:
     c, s = np.cos(yaw), np.sin(yaw)
     e = np.zeros((n, 3, 3))
     e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1], e[:, 2, 2] = c, -s, s, c, 1.0
-    v = np.column_stack(
-        [_gauss_markov(rng, n, dt, 3.0, 8.0), _gauss_markov(rng, n, dt, 3.0, 8.0), np.zeros(n)]
-    )
+    v = _gauss_markov(rng, n, dt, 3.0, 8.0) * np.array([1.0, 1.0, 0.0])
     u = np.einsum("kji,kj->ki", e, v)  # body airspeed (no wind)
-    du = np.column_stack(
-        [_gauss_markov(rng, n, dt, 0.04, 2.0), _gauss_markov(rng, n, dt, 0.04, 2.0)]
-    )
+    du = _gauss_markov(rng, n, dt, 0.04, 2.0)[:, :2]
     k, q, bias = 0.24, 0.034, np.array([0.05, -0.03])
     us = u[:, :2] + du  # what the law reads
     f = np.column_stack([-k * us - q * us * np.abs(us) + bias, np.full(n, -9.8)])
