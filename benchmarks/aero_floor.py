@@ -55,6 +55,7 @@ from glmav_testkit.ardupilot_floor import (
     LawMisfit,
     ardupilot_floor_model,
     as_flown_floor_model,
+    causal_hand_over,
     height_above_start_m,
     law_misfit_ne_mps,
     misfit_statistics,
@@ -160,6 +161,22 @@ def floor_of_case(
     s10, s60 = _sigmas(m, aided, horizon_s)
     # glmav-sitl and d: the as-flown floor is the oracle's (the module docstring)
     a10, a60 = (s10, s60) if as_flown is None else _sigmas(as_flown, aided, horizon_s)
+    c10, c60 = a10, a60
+    causal: LawMisfit | None = None
+    if as_flown is not None and misfit is not None:
+        causal = _causal_misfit(fl, meta, float(case["t_loss_s"]), horizon_s)[axis]
+        if causal is None:  # no law before the loss: the oracle can only dead-reckon
+            c10, c60 = _sigmas(m, False, horizon_s)
+        else:
+            cm = as_flown_floor_model(m, causal)
+            c10, c60 = (
+                float(x)
+                for x in sigma_after_loss_mps(
+                    cm,
+                    np.array([10.0, horizon_s]),
+                    p0=causal_hand_over(cm, misfit.slow_sigma_mps),
+                )
+            )
     return {
         "floor_sigma10_mps": s10,
         "floor_sigma60_mps": s60,
@@ -172,31 +189,70 @@ def floor_of_case(
         "misfit_white_sigma_mps": math.nan if misfit is None else misfit.white_sigma_mps,
         "misfit_slow_sigma_mps": math.nan if misfit is None else misfit.slow_sigma_mps,
         "misfit_slow_tau_s": math.nan if misfit is None else misfit.slow_tau_s,
+        "causal_median10_mps": median_abs_error_mps(c10),
+        "causal_median60_mps": median_abs_error_mps(c60),
+        "causal_slow_sigma_mps": math.nan if causal is None else causal.slow_sigma_mps,
+        "causal_slow_tau_s": math.nan if causal is None else causal.slow_tau_s,
     }
 
 
 _MISFITS: dict[int, tuple[LawMisfit, LawMisfit]] = {}
+_CAUSAL: dict[tuple[int, float, float], tuple[LawMisfit | None, LawMisfit | None]] = {}
+
+
+def _law_misfit(
+    fl: Flight, meta: dict[str, Any], fit_mask: NDArray[np.bool_] | None = None
+) -> tuple[NDArray[np.bool_], FloatArray]:
+    """``law_misfit_ne_mps`` on an ArduPilot flight: the truth's velocity at the velocity
+    samples' times, its height from the truth's down velocity."""
+    t = fl.t_vel_s
+    h = np.interp(t, fl.t_truth_s, height_above_start_m(fl.t_truth_s, fl.v_truth_ned_mps[:, 2]))
+    return law_misfit_ne_mps(
+        meta,
+        t,
+        v_truth_ned_mps=_truth_at_velocity(fl),
+        height_m=h,
+        e_body_to_ned=fl.E_vel,
+        f_mean_body_mps2=fl.f_mean_body_mps2,
+        fit_mask=fit_mask,
+    )
 
 
 def _misfit(fl: Flight, meta: dict[str, Any]) -> tuple[LawMisfit, LawMisfit]:
-    """The drag law's misfit statistics on n and e of an ArduPilot flight (its airborne
-    samples; the truth's velocity at the velocity samples' times)."""
+    """The drag law's misfit statistics on n and e of an ArduPilot flight (the law fitted
+    over its airborne samples, the statistics read over them, their mean removed)."""
     key = id(fl)
     if key not in _MISFITS:
-        t = fl.t_vel_s
-        v = _truth_at_velocity(fl)
-        h = np.interp(t, fl.t_truth_s, height_above_start_m(fl.t_truth_s, fl.v_truth_ned_mps[:, 2]))
-        ok, err = law_misfit_ne_mps(
-            meta,
-            t,
-            v_truth_ned_mps=v,
-            height_m=h,
-            e_body_to_ned=fl.E_vel,
-            f_mean_body_mps2=fl.f_mean_body_mps2,
-        )
-        dt = float(np.median(np.diff(t)))
+        ok, err = _law_misfit(fl, meta)
+        dt = float(np.median(np.diff(fl.t_vel_s)))
         _MISFITS[key] = (misfit_statistics(err[ok, 0], dt), misfit_statistics(err[ok, 1], dt))
     return _MISFITS[key]
+
+
+def _causal_misfit(
+    fl: Flight, meta: dict[str, Any], t_loss_s: float, horizon_s: float
+) -> tuple[LawMisfit | None, LawMisfit | None]:
+    """The causal floor's misfit on n and e for a loss at ``t_loss_s``: the law fitted on
+    the airborne samples before the loss only, its misfit's statistics read over the
+    loss's window with its mean kept (what the law is off by after the loss, which the
+    healthy filter could not see). None: fewer than MIN_FIT_SAMPLES airborne samples
+    before the loss, no law to aid with."""
+    key = (id(fl), t_loss_s, horizon_s)
+    if key not in _CAUSAL:
+        t = fl.t_vel_s
+        before = t < t_loss_s
+        try:
+            ok, err = _law_misfit(fl, meta, fit_mask=before)
+        except ValueError:
+            _CAUSAL[key] = (None, None)
+            return _CAUSAL[key]
+        window = ok & (t >= t_loss_s) & (t <= t_loss_s + horizon_s)
+        dt = float(np.median(np.diff(t)))
+        _CAUSAL[key] = (
+            misfit_statistics(err[window, 0], dt, keep_mean=True),
+            misfit_statistics(err[window, 1], dt, keep_mean=True),
+        )
+    return _CAUSAL[key]
 
 
 _STATS: dict[int, tuple[FloatArray, FloatArray]] = {}
@@ -244,6 +300,8 @@ def judge_groups(cases: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 "err60_aided_mps",
                 "asflown_median10_mps",
                 "asflown_median60_mps",
+                "causal_median10_mps",
+                "causal_median60_mps",
             )
         }
         applies = med["floor_median60_mps"] < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
@@ -252,6 +310,9 @@ def judge_groups(cases: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         af_applies = med["asflown_median60_mps"] < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
         af10 = _ratio(med["err10_aided_mps"], med["asflown_median10_mps"])
         af60 = _ratio(med["err60_aided_mps"], med["asflown_median60_mps"])
+        ca_applies = med["causal_median60_mps"] < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
+        ca10 = _ratio(med["err10_aided_mps"], med["causal_median10_mps"])
+        ca60 = _ratio(med["err60_aided_mps"], med["causal_median60_mps"])
         out.append(
             {
                 "set": set_name,
@@ -280,6 +341,13 @@ def judge_groups(cases: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 "aided/as-flown +60": af60,
                 "as-flown bound met": (not af_applies)
                 or (af10 <= FLOOR_FACTOR and af60 <= FLOOR_FACTOR),
+                "causal +10": med["causal_median10_mps"],
+                "causal +60": med["causal_median60_mps"],
+                "causal applies": ca_applies,
+                "aided/causal +10": ca10,
+                "aided/causal +60": ca60,
+                "causal bound met": (not ca_applies)
+                or (ca10 <= FLOOR_FACTOR and ca60 <= FLOOR_FACTOR),
                 "worse than DR": sum(
                     float(c["rms_aided_mps"]) > float(c["rms_dr_mps"]) + WORSE_TOL_MPS for c in cs
                 ),
@@ -320,6 +388,12 @@ GROUP_KEYS: tuple[str, ...] = (
     "aided/as-flown +10",
     "aided/as-flown +60",
     "as-flown bound met",
+    "causal +10",
+    "causal +60",
+    "causal applies",
+    "aided/causal +10",
+    "aided/causal +60",
+    "causal bound met",
     "worse than DR",
 )
 SET_KEYS: tuple[str, ...] = (
@@ -332,6 +406,9 @@ SET_KEYS: tuple[str, ...] = (
     "as-flown applies (flight-axes)",
     "as-flown bound met",
     "aided/as-flown +60, median",
+    "causal applies (flight-axes)",
+    "causal bound met",
+    "aided/causal +60, median",
     "worse than DR",
     "worst RMS excess",
     "cover aided",
@@ -351,6 +428,7 @@ def judge_sets(
         gs = [g for g in groups if g["set"] == set_name]
         app = [g for g in gs if g["floor applies"]]
         af = [g for g in gs if g["as-flown applies"]]
+        ca = [g for g in gs if g["causal applies"]]
         worse = [float(c["rms_aided_mps"]) - float(c["rms_dr_mps"]) for c in cs]
         cover = statistics.fmean(float(c["cover2_aided"]) for c in cs)
         out.append(
@@ -369,6 +447,11 @@ def judge_sets(
                     statistics.median(float(g["aided/as-flown +60"]) for g in af)
                     if af
                     else math.nan
+                ),
+                "causal applies (flight-axes)": f"{len(ca)}/{len(gs)}",
+                "causal bound met": sum(bool(g["causal bound met"]) for g in ca),
+                "aided/causal +60, median": (
+                    statistics.median(float(g["aided/causal +60"]) for g in ca) if ca else math.nan
                 ),
                 "worse than DR": sum(w > WORSE_TOL_MPS for w in worse),
                 "worst RMS excess": max(worse),

@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from glmav_observer.estimation.aero.floor import FloorModel
+from glmav_observer.estimation.aero.floor import FloorModel, steady_state
 
 FloatArray = NDArray[np.float64]
 
@@ -225,6 +225,9 @@ AIRBORNE_HEIGHT_M = 2.0
 #: the longest correlation time looked for, s (the misfit's autocovariance is read up to
 #: it; a longer one is taken as this: the flights' are 0.08-3.6 s)
 MISFIT_MAX_TAU_S = 20.0
+#: the fewest airborne samples a law is fitted on (3 unknowns per body axis; fewer than
+#: this leaves no degrees of freedom worth the name)
+MIN_FIT_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -252,9 +255,13 @@ def law_misfit_ne_mps(
     height_m: FloatArray,
     e_body_to_ned: FloatArray,
     f_mean_body_mps2: FloatArray,
+    fit_mask: NDArray[np.bool_] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Per velocity sample: whether it is usable (airborne, finite) and the drag law's
     misfit on the n and e axes, m/s, shape (m, 2).
+
+    ``fit_mask``: the samples the law is fitted on (of the usable ones; default all): the
+    causal floor fits it on the samples before a loss and reads its misfit after.
 
     The body airspeed u = Eᵀ(v − w), w the sidecar's mean wind at the height (true
     velocity, the EKF's attitude: what the service has); per body axis j ∈ {x, y} the law
@@ -269,12 +276,13 @@ def law_misfit_ne_mps(
     )
     u = np.einsum("kji,kj->ki", e_body_to_ned, v_truth_ned_mps - wind)
     ok = (height_m > AIRBORNE_HEIGHT_M) & np.all(np.isfinite(f_mean_body_mps2), axis=1)
-    if int(ok.sum()) < 10:
-        raise ValueError(f"{meta.get('name')}: fewer than 10 airborne samples")
+    fit = ok if fit_mask is None else ok & fit_mask
+    if int(fit.sum()) < MIN_FIT_SAMPLES:
+        raise ValueError(f"{meta.get('name')}: fewer than {MIN_FIT_SAMPLES} airborne samples")
     err_body = np.zeros((len(t_s), 2))
     for j in range(2):
         a = np.column_stack([-u[:, j], -u[:, j] * np.abs(u[:, j]), np.ones(len(t_s))])
-        theta, *_ = np.linalg.lstsq(a[ok], f_mean_body_mps2[ok, j], rcond=None)
+        theta, *_ = np.linalg.lstsq(a[fit], f_mean_body_mps2[fit, j], rcond=None)
         slope = np.maximum(theta[0] + 2.0 * theta[1] * np.abs(u[:, j]), 1e-3)
         # f − f_law = −slope·δu: the airspeed error the law reads
         err_body[:, j] = -(f_mean_body_mps2[:, j] - a @ theta) / slope
@@ -282,16 +290,22 @@ def law_misfit_ne_mps(
     return ok, err_ne
 
 
-def misfit_statistics(err_mps: FloatArray, dt_s: float) -> LawMisfit:
+def misfit_statistics(err_mps: FloatArray, dt_s: float, *, keep_mean: bool = False) -> LawMisfit:
     """White σ, Gauss-Markov σ and τ of a misfit series (one axis, uniform samples dt_s
     apart). With C(L) its autocovariance (mean removed: a constant part is learnt before
     any loss), a white part adds to C(0) only and a Gauss-Markov part gives C(L) =
     σ_m² exp(−L dt/τ) at every lag. So the decay from lag 1 on is the Gauss-Markov part's
     alone: C(L_e) = C(1)/e at L_e = 1 + τ/dt (L_e interpolated linearly between lags),
     σ_m² = C(1) exp(dt/τ) (at most C(0)) and σ_e² = C(0) − σ_m². A τ beyond
-    MISFIT_MAX_TAU_S is taken as that."""
+    MISFIT_MAX_TAU_S is taken as that.
+
+    ``keep_mean``: the mean is not removed (the causal floor: a law fitted before the loss
+    is off after it by a constant too, which nothing during the loss can learn). Its
+    square m² then adds to every lag: the slow part takes it in, and where m² ≥ C(1)/e
+    C never falls to C(1)/e and τ is MISFIT_MAX_TAU_S."""
     r = np.asarray(err_mps, dtype=np.float64)
-    r = r - float(np.mean(r))
+    if not keep_mean:
+        r = r - float(np.mean(r))
     n = len(r)
     max_lag = min(int(MISFIT_MAX_TAU_S / dt_s) + 1, n // 3)
     if max_lag < 2:
@@ -323,3 +337,16 @@ def as_flown_floor_model(oracle: FloorModel, misfit: LawMisfit) -> FloorModel:
         turbulence_sigma_mps=misfit.slow_sigma_mps,
         turbulence_time_constant_s=max(misfit.slow_tau_s, 1e-3),
     )
+
+
+def causal_hand_over(m: FloorModel, known_slow_sigma_mps: float) -> FloatArray:
+    """The causal floor's hand-over covariance: the healthy steady state of ``m``, with the
+    part of the slow misfit w that the healthy filter could not have measured added as an
+    independent unknown, P_ww += σ_w² − σ_known² (≥ 0). σ_known (``known_slow_sigma_mps``)
+    is the as-flown misfit's slow σ, what a law fitted over the whole flight leaves and
+    the healthy filter tracks; what a law fitted before the loss will be off by after it,
+    in a regime it has not seen, no measurement before the loss tells. (Added, not
+    substituted: P₀ only grows, so no σ after the loss shrinks.)"""
+    p = np.array(steady_state(m, healthy=True), dtype=np.float64)
+    p[2, 2] += max(m.turbulence_sigma_mps**2 - known_slow_sigma_mps**2, 0.0)
+    return p

@@ -16,12 +16,16 @@ from numpy.typing import NDArray
 from glmav_observer.estimation.aero import DragModel
 from glmav_observer.estimation.aero.floor import (
     MEDIAN_ABS_PER_SIGMA,
+    FloorModel,
     double_integrator_pvv_m2ps2,
     sigma_after_loss_mps,
+    steady_state,
 )
 from glmav_sitl.wind import WindConfig, WindModel
 from glmav_testkit.ardupilot_floor import (
+    MISFIT_MAX_TAU_S,
     ardupilot_floor_model,
+    causal_hand_over,
     frame_drag,
     law_misfit_ne_mps,
     mean_wind_ne_mps,
@@ -185,6 +189,84 @@ def test_the_law_misfit_is_read_through_the_fit_and_the_rotation() -> None:
         assert abs(got.slow_sigma_mps - 0.04) <= 0.1 * 0.04, (axis, got)
         assert abs(got.slow_tau_s - 2.0) <= 0.25 * 2.0, (axis, got)
         assert got.white_sigma_mps < 0.2 * 0.04, (axis, got)
+
+
+def test_a_kept_mean_is_read_as_slow_misfit() -> None:
+    # the causal floor keeps the misfit's mean (a law fitted before the loss is off by a
+    # constant after it): the series of the test above, mean 0.3 m/s kept. C(L) = m² +
+    # σ_m² e^(−L dt/τ) (+ σ_e² at lag 0); m² = 0.09 > C(1)/e ≈ 0.034, so C never falls to
+    # C(1)/e: τ is the cap and the slow σ² ≈ C(1) ≈ m² + σ_m² (0.304 m/s)
+    rng = np.random.default_rng(11)
+    dt, n = 0.04, 90_000
+    r = rng.normal(0.0, 0.1, n) + _gauss_markov(rng, n, dt, 0.05, 2.0)[:, 0] + 0.3
+    got = misfit_statistics(r, dt, keep_mean=True)
+    assert got.slow_tau_s == MISFIT_MAX_TAU_S, got
+    # C(1)'s Gauss-Markov share (0.0025 of 0.0925) has the ~1.2 % spread above; the mean
+    # is exact: 2 % on the slow σ, 10 % on the white (as above)
+    assert abs(got.slow_sigma_mps - math.hypot(0.3, 0.05)) <= 0.02 * 0.304, got
+    assert abs(got.white_sigma_mps - 0.1) <= 0.1 * 0.1, got
+
+
+def test_a_law_fitted_before_the_loss_is_judged_after_it() -> None:
+    # a quad-like law read with a Gauss-Markov airspeed error (σ 0.04 m/s, τ 2 s), 40 min
+    # at 25 Hz: 10 min of hover (< 0.5 m/s) then flight at up to ~10 m/s in every
+    # direction. Fitted on all of it, the misfit over the flight is the injected error;
+    # fitted on the hover alone (fit_mask), the law extrapolates: its misfit over the
+    # flight, mean kept, is far larger (k, q and the bias are not separable at hover
+    # speeds)
+    rng = np.random.default_rng(7)
+    dt, n, n_hover = 0.04, 60_000, 15_000
+    t = np.arange(n, dtype=np.float64) * dt
+    yaw = 2.0 * math.pi * t / 600.0
+    c, s = np.cos(yaw), np.sin(yaw)
+    e = np.zeros((n, 3, 3))
+    e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1], e[:, 2, 2] = c, -s, s, c, 1.0
+    v = _gauss_markov(rng, n, dt, 3.0, 8.0) * np.array([1.0, 1.0, 0.0])
+    v[:n_hover] *= 0.05  # the hover: ≤ ~0.5 m/s
+    u = np.einsum("kji,kj->ki", e, v)
+    us = u[:, :2] + _gauss_markov(rng, n, dt, 0.04, 2.0)[:, :2]
+    f = np.column_stack([-0.24 * us - 0.034 * us * np.abs(us) + 0.05, np.full(n, -9.8)])
+    meta = {"name": "synthetic", "baseline_params": {"SIM_WIND_SPD": 0.0}}
+    kw = {"v_truth_ned_mps": v, "height_m": np.full(n, 10.0), "e_body_to_ned": e}
+    flight = np.arange(n) >= n_hover
+    _, err_all = law_misfit_ne_mps(meta, t, f_mean_body_mps2=f, **kw)
+    _, err_hover = law_misfit_ne_mps(meta, t, f_mean_body_mps2=f, fit_mask=~flight, **kw)
+    for axis in range(2):
+        whole = misfit_statistics(err_all[flight, axis], dt, keep_mean=True)
+        causal = misfit_statistics(err_hover[flight, axis], dt, keep_mean=True)
+        # the whole-flight law leaves the injected error (its mean over 30 min is ~σ√(2τ/T)
+        # = 0.002 m/s): 10 % as in the test above
+        assert abs(whole.slow_sigma_mps - 0.04) <= 0.1 * 0.04, (axis, whole)
+        # the hover's law is off by more than ten times that in flight (measured: ×100s)
+        assert causal.slow_sigma_mps > 10.0 * whole.slow_sigma_mps, (axis, causal)
+
+
+def test_the_causal_hand_over_knows_only_the_known_part() -> None:
+    m = FloorModel(
+        accel_noise_density=1e-3,
+        accel_bias_random_walk=5e-3,
+        turbulence_sigma_mps=0.2,
+        turbulence_time_constant_s=3.0,
+        velocity_rate_hz=10.0,
+        velocity_sigma_mps=0.05,
+        drag_sigma_mps=0.01,
+    )
+    healthy = steady_state(m, healthy=True)
+    p = causal_hand_over(m, 0.05)
+    # the healthy filter's covariance, w's variance grown by the unknown part (0.2² − 0.05²)
+    grown = healthy.copy()
+    grown[2, 2] += 0.2**2 - 0.05**2
+    assert np.allclose(p, grown, rtol=1e-12, atol=0.0)
+    # the hand-over knowing less, the aided σ is no smaller at any time after the loss
+    # (the Riccati recursion is monotone in P₀; rounding: 1e-12). It is barely larger
+    # (measured < 0.1 %): with a slow w the filter cannot tell w from the drift of v
+    # whatever it knew at the hand-over, so the misfit's statistics set the floor
+    tt = np.array([1.0, 10.0, 60.0])
+    known = sigma_after_loss_mps(m, tt)
+    unknown = sigma_after_loss_mps(m, tt, p0=p)
+    assert np.all(unknown >= known * (1.0 - 1e-12)), (known, unknown)
+    # a misfit known in full adds nothing (never a negative variance)
+    assert np.allclose(causal_hand_over(m, 0.3), healthy, rtol=0.0, atol=0.0)
 
 
 def test_the_as_flown_floor_on_the_calm_coax() -> None:
