@@ -10,6 +10,10 @@ and the sidecar JSON as it is. Run from the repo root:
 held-out corpus does:
 
     python scripts/trim_corpus.py --multi-imu RAW_DIR tests/data/ardupilot_sitl_heldout
+
+``--aero`` keeps only what the lost-axis benchmark reads (the wind tuning flights):
+
+    python scripts/trim_corpus.py --aero RAW_DIR tests/data/ardupilot_sitl_wind
 """
 
 from __future__ import annotations
@@ -39,6 +43,9 @@ KEEP = frozenset(
 #: the other IMUs an ArduPilot sends: in KEEP now (imu_monitor); ``--multi-imu`` is kept
 #: for the recipes that name it
 MULTI_IMU = frozenset({"SCALED_IMU2", "SCALED_IMU3"})
+#: ``--aero``: what the lost-axis benchmark reads (benchmarks/aero.py: the service's
+#: inputs and the truth), for flights kept for it alone (tests/data/ardupilot_sitl_wind)
+AERO = frozenset({"HEARTBEAT", "ATTITUDE", "RAW_IMU", "LOCAL_POSITION_NED", "SIM_STATE"})
 
 
 def trim(src: Path, dst: Path, keep: frozenset[str] = KEEP) -> tuple[int, int]:
@@ -66,8 +73,9 @@ def main() -> int:
     ap.add_argument(
         "--multi-imu", action="store_true", help="also keep SCALED_IMU2 and SCALED_IMU3"
     )
+    ap.add_argument("--aero", action="store_true", help="keep only what benchmarks/aero.py reads")
     a = ap.parse_args()
-    keep = KEEP | MULTI_IMU if a.multi_imu else KEEP
+    keep = AERO if a.aero else (KEEP | MULTI_IMU if a.multi_imu else KEEP)
     a.dst.mkdir(parents=True, exist_ok=True)
     for tlog in sorted(a.src.glob("*.tlog")):
         kept, total = trim(tlog, a.dst / (tlog.name + ".xz"), keep)
