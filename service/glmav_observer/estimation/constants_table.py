@@ -129,6 +129,11 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                                 "has one coefficient for both): a row whose speed barely "
                                 "varied borrows the other row's k, q "
                                 "(estimation/aero/symmetry.py)"),
+        "aero_refuse_negative_k": _r("", "physics", "no pseudo-measurement while a row's k "
+                                     "is clearly negative: drag dissipates, so the law "
+                                     "does not hold there (DragModelConfig."
+                                     "refuse_negative_k); off for a heli without the "
+                                     "cyclic regressors"),
     },
     "DragModelConfig": {
         "tau_s": _r("s", "physics", "forgetting time constant: slow against gusts, fast "
@@ -173,8 +178,10 @@ CLASS_REASONS: dict[str, dict[str, Reason]] = {
                                "compares with: a GPS velocity's 1σ"),
         "nees_n_min": _r("validations", "statistic", "effective validations per axis before "
                          "it may be aided: a NEES mean from 10 has ~45 % relative σ"),
-        "nees_max": _r("", "statistic", "NEES above this refuses the axis (σ would have to "
-                       "be inflated more than √25 = 5 times)"),
+        "nees_max": _r("", "statistic", "NEES above this refuses the axis: 3σ above a "
+                       "consistent model's mean NEES (χ²_n/n, σ √(2/n)) over the "
+                       "nees_n_min validations, correlated to n ≈ 10/3, is 3.3; was 25, "
+                       "whose inflated models were worse than dead reckoning in wind"),
         "aided_axes": _r("", "measured", "NED axes that may be aided: d is off, forced on it "
                          "made d worse than dead reckoning in 5 of 40 ArduPilot SITL cases "
                          "(worst 60 s RMS 1.68 vs 0.16 m/s), better in none "

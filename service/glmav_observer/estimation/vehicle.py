@@ -169,6 +169,11 @@ class EstimatorConfig:
     #: ``DragModelConfig.symmetric_xy``, a body row whose speed barely varied borrows the
     #: other row's k and q
     aero_symmetric_xy: bool = False
+    #: no pseudo-measurement while a body row's learnt k is clearly negative
+    #: (``DragModelConfig.refuse_negative_k``: the drag law does not hold there). A heli
+    #: flown without the cyclic regressors may turn it off: its rotor's flapping under
+    #: velocity control reads as a negative k on y while the x row still aids
+    aero_refuse_negative_k: bool = True
     #: after a GPS loss, the GPS's own velocity while the autopilot's re-converges
     #: (:mod:`.gps_bridge`)
     gps_bridge: GpsBridgeConfig = field(default_factory=GpsBridgeConfig)
@@ -177,14 +182,22 @@ class EstimatorConfig:
 
 def _drag_model_config(config: EstimatorConfig) -> DragModelConfig | None:
     """The drag model's settings from ``[estimation]`` (None: the defaults)."""
-    if config.aero_prior_k_per_s <= 0.0 and not config.aero_symmetric_xy:
+    if (
+        config.aero_prior_k_per_s <= 0.0
+        and not config.aero_symmetric_xy
+        and config.aero_refuse_negative_k
+    ):
         return None
     prior_k = (
         (config.aero_prior_k_per_s, config.aero_prior_k_sigma_per_s)
         if config.aero_prior_k_per_s > 0.0
         else None
     )
-    return DragModelConfig(prior_k=prior_k, symmetric_xy=config.aero_symmetric_xy)
+    return DragModelConfig(
+        prior_k=prior_k,
+        symmetric_xy=config.aero_symmetric_xy,
+        refuse_negative_k=config.aero_refuse_negative_k,
+    )
 
 
 class VehicleEstimator:

@@ -23,7 +23,12 @@ every call needs ρ (a sample without it is neither learnt nor used). Without it
 is the five-parameter one, computed with the same floats.
 
 The quadratic term is taken in the ground speed, not the airspeed (A2: exact without wind;
-with wind its cross term 2q·w·u is absorbed by the linear terms): taking it in the
+with wind q·u|u| = q·(s − w_j)|s − w_j| differs by a cross term −2q·w_j·s that shifts the
+row's k by −2q·w_j, w_j the wind along the row, which turns with the heading, and by a
+sign term where airspeed and ground speed differ in sign: no linear term absorbs either
+once the heading varies. On ArduPilot's quads (q/k = 0.14 1/(m/s)) a 4 m/s wind leaves a
+residual twice the airspeed form's on the wind tuning flights and a learnt k that is
+clearly negative on one row for most of the flight: ``refuse_negative_k``). Taking it in the
 estimated airspeed makes the regression depend on its own output, which diverged on
 ArduPilot's SITL quad (a 10 m/s phantom wind within 20 s). ArduPilot's quad needs it: on
 h_quad_gps_glitch a linear-only batch fit leaves 0.16 m/s² of residual on x, with
@@ -57,7 +62,9 @@ residual exceeds 5σ is not learnt (a GPS glitch) unless 25 come in a row.
 sample count), enough excitation (spread of the body-frame speed r_j·v ≥ 0.3 m/s), a
 residual spread below ``sigma_f_max_mps2`` (off by default since issue 32: σ_f sets the
 pseudo-measurement's σ, which the aided filter weighs) and k_j clearly positive
-(k_j ≥ 5σ(k_j)); only passing rows are used. Both rows refuse themselves while the
+(k_j ≥ 5σ(k_j)); only passing rows are used, and none while a row's k is clearly
+negative (k_j ≤ −5σ(k_j): drag dissipates, so the law does not hold there; a steady wind
+breaks (A2), ``refuse_negative_k``). Both rows refuse themselves while the
 model is *changing*: more than 5 samples (exponentially weighted over 5 s) that a model
 which had passed these tests could not explain at 5σ (a wind change, a payload; on
 a_quad_wind the 4 m/s wind switched on at 63.7 s gave 51 then 90 outliers in the next
@@ -66,7 +73,7 @@ learnt), so a model that was changing at the hand-over is not used for that loss
 every 5th sample the pseudo-measurement of one axis in turn is compared with its
 measurement before the sample is learnt; an axis is aided only after ≥ 10 (effective)
 validations, with σ inflated by √NEES when the normalised squared error exceeds 1 and
-refused above 25. During a fault: when both rows see the lost axis their two values must
+refused above 4 (``nees_max``: beyond a consistent model's 3σ). During a fault: when both rows see the lost axis their two values must
 agree within 3σ; if they disagree in > 20 % of recent calls the model is
 :attr:`DragModel.broken` (a wind change, another airframe) until it learns again.
 
@@ -175,9 +182,17 @@ class DragModelConfig:
     sigma_v_meas_mps: float = 0.05
     #: effective number of validations per axis before that axis may be aided
     nees_n_min: float = 10.0
-    #: normalised squared error above this: the axis is refused (its σ would have to be
-    #: inflated more than √25 = 5 times); between 1 and this, σ is inflated by √NEES
-    nees_max: float = 25.0
+    #: normalised squared error above this: the axis is refused; between 1 and this, σ
+    #: is inflated by √NEES. A consistent model's mean NEES over n independent
+    #: validations is χ²_n/n, σ √(2/n); the nees_n_min = 10 validations of an axis are
+    #: correlated over the misfit's 1-3.5 s (docs/benchmarks/aero.md) against one per
+    #: 0.6 s per axis, so n ≈ 10/3 and 3σ above 1 is 3.3: a NEES above 4 is a model whose
+    #: errors are not its σ's (a bias: inflating σ does not stop the filter averaging it
+    #: in). It was 25 (σ inflated up to 5 times); measured on the wind tuning flights the
+    #: inflated models' losses were worse than dead reckoning in 1 of 40 standard and 9 of
+    #: 24 later losses (by up to 0.31 m/s RMS), none at 4; the price, aiding in 3 fewer of
+    #: the calm tuning flights' 24 later losses and 2 of glmav-sitl's 20 calm ones
+    nees_max: float = 4.0
     #: NED axes that may be aided (0 n, 1 e, 2 d). d is off by default: through the body
     #: x/y rows it is seen only as −sinθ·v_d, an extrapolation the learning data barely
     #: check (v_d ≈ 0 in cruise), and on ArduPilot's SITL quads forcing it on made d worse
@@ -225,6 +240,23 @@ class DragModelConfig:
             "unit": "bool",
             "source": "physics: drag dissipates energy, q ≥ 0",
             "reason": "a negative fitted q leaves no root: use the linear part",
+        },
+    )
+    #: a body row whose k is clearly negative (k ≤ −k_z_min σ(k)) shows that the law does
+    #: not hold where the vehicle flies: drag dissipates energy (k ≥ 0), so a force that
+    #: grows *with* the speed along a row is something else the form has no term for (in
+    #: a steady wind the ground-speed quadratic (A2)'s cross term −2q·w_j·s_j; a heli's
+    #: cyclic flapping under velocity control). The other row shares the vehicle, the
+    #: wind and the attitude: no pseudo-measurement is made from either while it lasts.
+    #: Measured (docs/benchmarks/aero.md): on the ArduPilot wind tuning flights, 7 of the
+    #: 8 losses whose aided RMS was above dead reckoning's by more than 0.02 m/s (by up
+    #: to 0.77) had one row clearly negative; off: the model bit for bit as before
+    refuse_negative_k: bool = field(
+        default=True,
+        metadata={
+            "unit": "bool",
+            "source": "physics: drag dissipates energy, k ≥ 0 (z-test at k_z_min)",
+            "reason": "a row the law clearly does not fit: the other is no better evidence",
         },
     )
     #: the vehicle's drag is the same along body x and y (a quad, hexa or octa: rotors
@@ -772,10 +804,28 @@ class DragModel:
                 why.append(f"{name}: k {k[j]:.3f} 1/s not clearly > 0 (z {z[j]:.1f})")
         return "; ".join(why) if why else "ok"
 
+    def _negative_k(self) -> str:
+        """With ``refuse_negative_k``: the row whose k is clearly negative and its z
+        (k/σ(k) ≤ −k_z_min, the k test's threshold mirrored), "" when none is."""
+        cfg = self.config
+        if not cfg.refuse_negative_k or self._n_eff < cfg.n_eff_min:
+            return ""
+        th, P, _, _ = self._use_lists()
+        for j, name in enumerate("xy"):
+            k = th[j][_K]
+            sigma_k = math.sqrt(P[j][_K][_K])
+            if k <= -cfg.k_z_min * sigma_k:
+                return f"{name}: k {k:.3f} 1/s clearly < 0 (z {k / sigma_k:.1f}): not drag"
+        return ""
+
     def trust(self) -> Trust:
         """The model's own test (module docstring): trusted when at least one body row
-        passes it (the pseudo-measurement uses only rows that do), else the reasons."""
+        passes it (the pseudo-measurement uses only rows that do) and no row's k is
+        clearly negative (``refuse_negative_k``), else the reasons."""
         ok, why = self.trusted_rows()
+        negative = self._negative_k()
+        if negative:
+            return Trust(False, f"{negative}; {why}")
         return Trust(bool(ok.any()), why)
 
     # ------------------------------------------------------------------ using it
@@ -847,6 +897,8 @@ class DragModel:
                 # held out in time (``holdout_s``): the larger of the two decides
                 nees = max(nees, self._ho_sum[lost_axis] / self._ho_n[lost_axis])
             if not nees <= cfg.nees_max:
+                return None
+            if self._negative_k():  # ``refuse_negative_k``: the law does not hold here
                 return None
             scale = math.sqrt(max(1.0, nees))
         ok, _ = self._row_tests()

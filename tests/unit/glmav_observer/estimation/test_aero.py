@@ -111,6 +111,30 @@ def test_untrusted_without_data_or_without_drag() -> None:
     assert not tr.ok and "not clearly > 0" in tr.reason
 
 
+def test_a_row_whose_k_is_clearly_negative_refuses_the_model() -> None:
+    # the y row's force grows *with* the speed along it (k_y = −0.3 1/s): no drag does
+    # that (drag dissipates), so the law does not hold where this vehicle flies; its x row
+    # fits, yet shares the vehicle, the wind and the attitude
+    model = learnt(k=(0.40, -0.30))
+    sd_k = math.sqrt(model.cov_theta[1, 1, 1])
+    # the data say so clearly: k_y within 4.5σ of −0.3 and σ ≈ 1e-3 (as above)
+    assert model.k_per_s[1] <= -5.0 * sd_k, (model.k_per_s, sd_k)
+    tr = model.trust()
+    assert not tr.ok and "y: k" in tr.reason and "clearly < 0" in tr.reason, tr
+    t = np.arange(120.0, 121.0, 1.0 / RATE_HZ)
+    f, E, v, _ = flight(t, k=(0.40, -0.30), seed=3)
+    assert model.pseudo_measurement(f[0], E[0], v[0], 0) is None
+    # the validation's pseudo-measurements go on (they only measure, and the x row's are
+    # right): when the rows fit again the model needs no new validation
+    assert model.pseudo_measurement(f[0], E[0], v[0], 0, validated=False) is not None
+    # refuse_negative_k off: the model as before, the x row alone aids
+    before = learnt(k=(0.40, -0.30), config=DragModelConfig(refuse_negative_k=False))
+    assert before.trust().ok and before.trust().reason.startswith("y: k")
+    pm = before.pseudo_measurement(f[0], E[0], v[0], 0)
+    # from the x row, exact law plus noise σ_f: within 5σ of the truth
+    assert pm is not None and abs(pm.v_mps - v[0, 0]) <= 5.0 * pm.sigma_mps, (pm, v[0])
+
+
 def test_hovering_is_not_enough_excitation() -> None:
     model = DragModel()
     E = e_exact(np.array([0.0, 0.0, 0.3]))
