@@ -457,6 +457,7 @@ def run_flight(
     aided_config: AidedAxisConfig | None = None,
     drift_rate: bool = True,
     late: bool = False,
+    vehicle_prior: bool = True,
 ) -> list[dict[str, Any]]:
     """All cases of a flight: the model learns once up to each loss time (snapshots), and
     the dead-reckoning drift rate is measured alongside (``drift_rate``; False: not, the
@@ -464,9 +465,12 @@ def run_flight(
     ``d_forced``: also the d cases with d aided (off by default, ``aided_axes``), marked
     ``"variant": "d aided"``. ``model_config``: the model's settings (default: the
     service's), its ``control`` set by the flight. ``late``: the later losses
-    (:func:`late_loss_times_s`, a LATE_HORIZON_S window each) instead of the five."""
+    (:func:`late_loss_times_s`, a LATE_HORIZON_S window each) instead of the five.
+    ``vehicle_prior``: a glmav-sitl flight's model without a ``prior_k`` gets the vehicle
+    file's, as the service is configured for it (False: ``model_config`` as given, e.g.
+    the uninformed variant of ``benchmarks.aero_prior_k``)."""
     base = model_config or DragModelConfig()
-    if fl.source == "glmav-sitl+cyclic" and base.prior_k is None:
+    if vehicle_prior and fl.source == "glmav-sitl+cyclic" and base.prior_k is None:
         # the service as configured for this vehicle: [estimation] aero_prior_k_per_s from
         # its vehicle file (issue 32: the floor's oracle knows the drag law; in a hover the
         # data alone cannot identify k)

@@ -102,7 +102,11 @@ def run(quick: bool = False) -> dict[str, Any]:
                 )
             )
             for label, cfg in variants:
-                cases = [c for c in run_flight(fl, model_config=cfg) if c["axis"] != "d"]
+                cases = [
+                    c
+                    for c in run_flight(fl, model_config=cfg, vehicle_prior=False)
+                    if c["axis"] != "d"
+                ]
                 summ = summarize(cases)
                 reasons = sorted({c["trust_reason"] for c in cases})
                 rows.append(
