@@ -73,8 +73,9 @@ learnt), so a model that was changing at the hand-over is not used for that loss
 every 5th sample the pseudo-measurement of one axis in turn is compared with its
 measurement before the sample is learnt; an axis is aided only after ≥ 10 (effective)
 validations, with σ inflated by √NEES when the normalised squared error exceeds 1 and
-refused above 4 (``nees_max``: beyond a consistent model's 3σ). During a fault: when both rows see the lost axis their two values must
-agree within 3σ; if they disagree in > 20 % of recent calls the model is
+refused above 4 (``nees_max``: beyond a consistent model's 3σ). During a fault: when
+both rows see the lost axis their two values must agree within 3σ; if they disagree in
+> 20 % of recent calls the model is
 :attr:`DragModel.broken` (a wind change, another airframe) until it learns again.
 
 **Pseudo-measurement** (:meth:`DragModel.pseudo_measurement`): with the two measured earth
@@ -188,10 +189,12 @@ class DragModelConfig:
     #: correlated over the misfit's 1-3.5 s (docs/benchmarks/aero.md) against one per
     #: 0.6 s per axis, so n ≈ 10/3 and 3σ above 1 is 3.3: a NEES above 4 is a model whose
     #: errors are not its σ's (a bias: inflating σ does not stop the filter averaging it
-    #: in). It was 25 (σ inflated up to 5 times); measured on the wind tuning flights the
-    #: inflated models' losses were worse than dead reckoning in 1 of 40 standard and 9 of
-    #: 24 later losses (by up to 0.31 m/s RMS), none at 4; the price, aiding in 3 fewer of
-    #: the calm tuning flights' 24 later losses and 2 of glmav-sitl's 20 calm ones
+    #: in). It was 25 (σ inflated up to 5 times); measured on the wind tuning flights, with
+    #: ``refuse_negative_k``, the inflated models' losses were worse than dead reckoning in
+    #: 1 of 40 standard and 9 of 24 later losses (by up to 0.31 m/s RMS), none at 4 (6 and
+    #: 9 left 5 and 9); the price, aiding in 3 fewer of the calm tuning flights' 24 later
+    #: losses and 2 of glmav-sitl's 20 calm ones (docs/design/observer-notes.md, "A steady
+    #: wind")
     nees_max: float = 4.0
     #: NED axes that may be aided (0 n, 1 e, 2 d). d is off by default: through the body
     #: x/y rows it is seen only as −sinθ·v_d, an extrapolation the learning data barely
