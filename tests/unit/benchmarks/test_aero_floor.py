@@ -133,6 +133,21 @@ def _gauss_markov(
     return out
 
 
+def _turning_flight(
+    rng: np.random.Generator, n: int, dt_s: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(t, E, v_ned) of a level flight whose heading turns once every 10 min through every
+    azimuth, its horizontal velocity a Gauss-Markov process (σ 3 m/s, τ 8 s): a law's
+    constants separate from its airspeed terms."""
+    t = np.arange(n, dtype=np.float64) * dt_s
+    yaw = 2.0 * math.pi * t / 600.0
+    c, s = np.cos(yaw), np.sin(yaw)
+    e = np.zeros((n, 3, 3))
+    e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1], e[:, 2, 2] = c, -s, s, c, 1.0
+    v = _gauss_markov(rng, n, dt_s, 3.0, 8.0) * np.array([1.0, 1.0, 0.0])
+    return t, e, v
+
+
 def test_the_misfits_white_and_slow_parts_are_recovered() -> None:
     # one hour at 25 Hz of white noise (σ 0.1 m/s) plus a Gauss-Markov process (σ 0.05,
     # τ 2 s), the shape of the calm flights' misfit with the wind flights' white part
@@ -160,12 +175,7 @@ def test_the_law_misfit_is_read_through_the_fit_and_the_rotation() -> None:
     # constants and leave that error, rotated to n and e
     rng = np.random.default_rng(5)
     dt, n = 0.04, 60_000
-    t = np.arange(n, dtype=np.float64) * dt
-    yaw = 2.0 * math.pi * t / 600.0
-    c, s = np.cos(yaw), np.sin(yaw)
-    e = np.zeros((n, 3, 3))
-    e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1], e[:, 2, 2] = c, -s, s, c, 1.0
-    v = _gauss_markov(rng, n, dt, 3.0, 8.0) * np.array([1.0, 1.0, 0.0])
+    t, e, v = _turning_flight(rng, n, dt)
     u = np.einsum("kji,kj->ki", e, v)  # body airspeed (no wind)
     du = _gauss_markov(rng, n, dt, 0.04, 2.0)[:, :2]
     k, q, bias = 0.24, 0.034, np.array([0.05, -0.03])
@@ -216,12 +226,7 @@ def test_a_law_fitted_before_the_loss_is_judged_after_it() -> None:
     # speeds)
     rng = np.random.default_rng(7)
     dt, n, n_hover = 0.04, 60_000, 15_000
-    t = np.arange(n, dtype=np.float64) * dt
-    yaw = 2.0 * math.pi * t / 600.0
-    c, s = np.cos(yaw), np.sin(yaw)
-    e = np.zeros((n, 3, 3))
-    e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1], e[:, 2, 2] = c, -s, s, c, 1.0
-    v = _gauss_markov(rng, n, dt, 3.0, 8.0) * np.array([1.0, 1.0, 0.0])
+    t, e, v = _turning_flight(rng, n, dt)
     v[:n_hover] *= 0.05  # the hover: ≤ ~0.5 m/s
     u = np.einsum("kji,kj->ki", e, v)
     us = u[:, :2] + _gauss_markov(rng, n, dt, 0.04, 2.0)[:, :2]
