@@ -33,6 +33,7 @@ configured for that vehicle: its vehicle file's k as the drag model's prior.
 
 from __future__ import annotations
 
+import collections
 import copy
 import dataclasses
 import math
@@ -1156,19 +1157,21 @@ def _not_aided_reason(c: dict[str, Any]) -> str:
     return "trusted, aided ≤ 50 %"
 
 
+def _reason_counts(cases: Sequence[dict[str, Any]]) -> list[tuple[str, int]]:
+    """How many of ``cases`` each :func:`_not_aided_reason` covers, the most common first."""
+    counts = collections.Counter(_not_aided_reason(c) for c in cases)
+    return sorted(counts.items(), key=lambda kv: -kv[1])
+
+
 def _why_not_aided(judged: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per ArduPilot set, the horizontal losses aided over half their time and, for the
     others, why not (the drag model's trust reason or the aided filter's stop reason)."""
     out = []
     for set_name in sorted({str(c["set"]) for c in judged if c["source"].startswith("ardupilot")}):
-        counts: dict[str, int] = {}
         cs = [c for c in judged if c["set"] == set_name and c["axis"] != "d"]
-        for c in cs:
-            key = _not_aided_reason(c)
-            counts[key] = counts.get(key, 0) + 1
         out += [
             {"set": set_name, "losses (n, e)": len(cs), "reason": k, "losses": v}
-            for k, v in sorted(counts.items(), key=lambda kv: -kv[1])
+            for k, v in _reason_counts(cs)
         ]
     return out
 
@@ -1191,11 +1194,7 @@ def _information_used(judged: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 == there
             ]
             aided = [c for c in part if float(c["aided_fraction"]) > 0.5]
-            counts: dict[str, int] = {}
-            for c in part:
-                if float(c["aided_fraction"]) <= 0.5:
-                    key = _not_aided_reason(c)
-                    counts[key] = counts.get(key, 0) + 1
+            not_aided = [c for c in part if float(c["aided_fraction"]) <= 0.5]
             out.append(
                 {
                     "set": set_name,
@@ -1214,7 +1213,7 @@ def _information_used(judged: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                         float(c["err60_aided_mps"]) < float(c["err60_dr_mps"]) for c in aided
                     ),
                     "not aided, why (losses)": "; ".join(
-                        f"{k} ({v})" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])
+                        f"{k} ({v})" for k, v in _reason_counts(not_aided)
                     ),
                 }
             )

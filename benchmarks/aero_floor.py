@@ -196,8 +196,16 @@ def floor_of_case(
     }
 
 
-_MISFITS: dict[int, tuple[LawMisfit, LawMisfit]] = {}
-_CAUSAL: dict[tuple[int, float, float], tuple[LawMisfit | None, LawMisfit | None]] = {}
+#: per-flight caches, keyed by :func:`_flight_key` (not ``id``: a flight freed and another
+#: built at the same address would read the first one's figures)
+_MISFITS: dict[tuple[str, str], tuple[LawMisfit, LawMisfit]] = {}
+_CAUSAL: dict[tuple[str, str, float, float], tuple[LawMisfit | None, LawMisfit | None]] = {}
+
+
+def _flight_key(fl: Flight) -> tuple[str, str]:
+    """A flight's identity across the objects built from it: its source and name (one
+    recording each; glmav-sitl flights have no sidecar and are not cached here)."""
+    return fl.source, str(fl.name)
 
 
 def _law_misfit(
@@ -221,7 +229,7 @@ def _law_misfit(
 def _misfit(fl: Flight, meta: dict[str, Any]) -> tuple[LawMisfit, LawMisfit]:
     """The drag law's misfit statistics on n and e of an ArduPilot flight (the law fitted
     over its airborne samples, the statistics read over them, their mean removed)."""
-    key = id(fl)
+    key = _flight_key(fl)
     if key not in _MISFITS:
         ok, err = _law_misfit(fl, meta)
         dt = float(np.median(np.diff(fl.t_vel_s)))
@@ -237,7 +245,7 @@ def _causal_misfit(
     loss's window with its mean kept (what the law is off by after the loss, which the
     healthy filter could not see). None: fewer than MIN_FIT_SAMPLES airborne samples
     before the loss, no law to aid with."""
-    key = (id(fl), t_loss_s, horizon_s)
+    key = (*_flight_key(fl), t_loss_s, horizon_s)
     if key not in _CAUSAL:
         t = fl.t_vel_s
         before = t < t_loss_s
@@ -255,11 +263,11 @@ def _causal_misfit(
     return _CAUSAL[key]
 
 
-_STATS: dict[int, tuple[FloatArray, FloatArray]] = {}
+_STATS: dict[tuple[str, str], tuple[FloatArray, FloatArray]] = {}
 
 
 def _flight_stats(fl: Flight) -> tuple[FloatArray, FloatArray]:
-    key = id(fl)
+    key = _flight_key(fl)
     if key not in _STATS:
         _STATS[key] = (input_error_random_walk(fl), velocity_sigma_mps(fl))
     return _STATS[key]
@@ -281,10 +289,34 @@ def _sitl_model(label: str, axis: int) -> FloorModel:
     return sitl_floor_model(sc, axis)
 
 
+#: the floors each loss is judged against: (the tables' label, the case's key prefix)
+FLOORS: tuple[tuple[str, str], ...] = (
+    ("floor", "floor"),
+    ("as-flown", "asflown"),
+    ("causal", "causal"),
+)
+
+
+def _against(label: str, f10: float, f60: float, med: dict[str, float]) -> dict[str, Any]:
+    """One floor's columns of a flight-axis: its medians, whether the bound applies (its
+    +60 s median below ``FLOOR_APPLIES_BELOW`` × dead reckoning's), the aided medians over
+    it and whether the bound is met."""
+    applies = f60 < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
+    r10 = _ratio(med["err10_aided_mps"], f10)
+    r60 = _ratio(med["err60_aided_mps"], f60)
+    return {
+        f"{label} +10": f10,
+        f"{label} +60": f60,
+        f"{label} applies": applies,
+        f"aided/{label} +10": r10,
+        f"aided/{label} +60": r60,
+        f"{label} bound met": (not applies) or (r10 <= FLOOR_FACTOR and r60 <= FLOOR_FACTOR),
+    }
+
+
 def judge_groups(cases: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per flight and axis (its losses): floor, dead reckoning and aided side by side, and
-    the bounds. ``floor_applies``: the floor's +60 s median below half of dead
-    reckoning's; ``ratio10``, ``ratio60``: aided median over the floor's."""
+    """Per flight and axis (its losses): the floors, dead reckoning and aided side by side,
+    and the bounds against each floor (:func:`_against`)."""
     keys = sorted({(str(c["set"]), str(c["flight"]), str(c["axis"])) for c in cases})
     out = []
     for set_name, flight, axis in keys:
@@ -292,67 +324,34 @@ def judge_groups(cases: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         med = {
             k: statistics.median(float(c[k]) for c in cs)
             for k in (
-                "floor_median10_mps",
-                "floor_median60_mps",
                 "err10_dr_mps",
                 "err10_aided_mps",
                 "err60_dr_mps",
                 "err60_aided_mps",
-                "asflown_median10_mps",
-                "asflown_median60_mps",
-                "causal_median10_mps",
-                "causal_median60_mps",
+                *(f"{p}_median{h}_mps" for _, p in FLOORS for h in (10, 60)),
             )
         }
-        applies = med["floor_median60_mps"] < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
-        r10 = _ratio(med["err10_aided_mps"], med["floor_median10_mps"])
-        r60 = _ratio(med["err60_aided_mps"], med["floor_median60_mps"])
-        af_applies = med["asflown_median60_mps"] < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
-        af10 = _ratio(med["err10_aided_mps"], med["asflown_median10_mps"])
-        af60 = _ratio(med["err60_aided_mps"], med["asflown_median60_mps"])
-        ca_applies = med["causal_median60_mps"] < FLOOR_APPLIES_BELOW * med["err60_dr_mps"]
-        ca10 = _ratio(med["err10_aided_mps"], med["causal_median10_mps"])
-        ca60 = _ratio(med["err60_aided_mps"], med["causal_median60_mps"])
-        out.append(
-            {
-                "set": set_name,
-                "flight": flight,
-                "axis": axis,
-                "losses": len(cs),
-                "floor +10": med["floor_median10_mps"],
-                "DR +10": med["err10_dr_mps"],
-                "aided +10": med["err10_aided_mps"],
-                "floor +60": med["floor_median60_mps"],
-                "DR +60": med["err60_dr_mps"],
-                "aided +60": med["err60_aided_mps"],
-                "DR RMS": statistics.median(float(c["rms_dr_mps"]) for c in cs),
-                "aided RMS": statistics.median(float(c["rms_aided_mps"]) for c in cs),
-                "cover DR": statistics.fmean(float(c["cover2_dr"]) for c in cs),
-                "cover aided": statistics.fmean(float(c["cover2_aided"]) for c in cs),
-                "aided > 50 %": sum(float(c["aided_fraction"]) > 0.5 for c in cs),
-                "floor applies": applies,
-                "aided/floor +10": r10,
-                "aided/floor +60": r60,
-                "floor bound met": (not applies) or (r10 <= FLOOR_FACTOR and r60 <= FLOOR_FACTOR),
-                "as-flown +10": med["asflown_median10_mps"],
-                "as-flown +60": med["asflown_median60_mps"],
-                "as-flown applies": af_applies,
-                "aided/as-flown +10": af10,
-                "aided/as-flown +60": af60,
-                "as-flown bound met": (not af_applies)
-                or (af10 <= FLOOR_FACTOR and af60 <= FLOOR_FACTOR),
-                "causal +10": med["causal_median10_mps"],
-                "causal +60": med["causal_median60_mps"],
-                "causal applies": ca_applies,
-                "aided/causal +10": ca10,
-                "aided/causal +60": ca60,
-                "causal bound met": (not ca_applies)
-                or (ca10 <= FLOOR_FACTOR and ca60 <= FLOOR_FACTOR),
-                "worse than DR": sum(
-                    float(c["rms_aided_mps"]) > float(c["rms_dr_mps"]) + WORSE_TOL_MPS for c in cs
-                ),
-            }
-        )
+        row: dict[str, Any] = {
+            "set": set_name,
+            "flight": flight,
+            "axis": axis,
+            "losses": len(cs),
+            "DR +10": med["err10_dr_mps"],
+            "aided +10": med["err10_aided_mps"],
+            "DR +60": med["err60_dr_mps"],
+            "aided +60": med["err60_aided_mps"],
+            "DR RMS": statistics.median(float(c["rms_dr_mps"]) for c in cs),
+            "aided RMS": statistics.median(float(c["rms_aided_mps"]) for c in cs),
+            "cover DR": statistics.fmean(float(c["cover2_dr"]) for c in cs),
+            "cover aided": statistics.fmean(float(c["cover2_aided"]) for c in cs),
+            "aided > 50 %": sum(float(c["aided_fraction"]) > 0.5 for c in cs),
+            "worse than DR": sum(
+                float(c["rms_aided_mps"]) > float(c["rms_dr_mps"]) + WORSE_TOL_MPS for c in cs
+            ),
+        }
+        for label, p in FLOORS:
+            row |= _against(label, med[f"{p}_median10_mps"], med[f"{p}_median60_mps"], med)
+        out.append(row)
     return out
 
 
@@ -420,44 +419,35 @@ SET_KEYS: tuple[str, ...] = (
 def judge_sets(
     cases: Sequence[dict[str, Any]], groups: Sequence[dict[str, Any]]
 ) -> list[dict[str, Any]]:
-    """Per set: how many flight-axes the floor bound applies to and meets, the losses worse
-    than dead reckoning, σ coverage over all the time of its losses."""
+    """Per set: how many flight-axes each floor's bound applies to and meets, the losses
+    worse than dead reckoning, σ coverage over all the time of its losses."""
     out = []
     for set_name in sorted({str(c["set"]) for c in cases}):
         cs = [c for c in cases if c["set"] == set_name]
         gs = [g for g in groups if g["set"] == set_name]
-        app = [g for g in gs if g["floor applies"]]
-        af = [g for g in gs if g["as-flown applies"]]
-        ca = [g for g in gs if g["causal applies"]]
         worse = [float(c["rms_aided_mps"]) - float(c["rms_dr_mps"]) for c in cs]
-        cover = statistics.fmean(float(c["cover2_aided"]) for c in cs)
-        out.append(
-            {
-                "set": set_name,
-                "losses": len(cs),
-                "aided > 50 %": sum(float(c["aided_fraction"]) > 0.5 for c in cs),
-                "floor applies (flight-axes)": f"{len(app)}/{len(gs)}",
-                "floor bound met": sum(bool(g["floor bound met"]) for g in app),
-                "aided/floor +60, median": (
-                    statistics.median(float(g["aided/floor +60"]) for g in app) if app else math.nan
-                ),
-                "as-flown applies (flight-axes)": f"{len(af)}/{len(gs)}",
-                "as-flown bound met": sum(bool(g["as-flown bound met"]) for g in af),
-                "aided/as-flown +60, median": (
-                    statistics.median(float(g["aided/as-flown +60"]) for g in af)
-                    if af
+        row: dict[str, Any] = {
+            "set": set_name,
+            "losses": len(cs),
+            "aided > 50 %": sum(float(c["aided_fraction"]) > 0.5 for c in cs),
+        }
+        for label, _ in FLOORS:
+            app = [g for g in gs if g[f"{label} applies"]]
+            row |= {
+                f"{label} applies (flight-axes)": f"{len(app)}/{len(gs)}",
+                f"{label} bound met": sum(bool(g[f"{label} bound met"]) for g in app),
+                f"aided/{label} +60, median": (
+                    statistics.median(float(g[f"aided/{label} +60"]) for g in app)
+                    if app
                     else math.nan
                 ),
-                "causal applies (flight-axes)": f"{len(ca)}/{len(gs)}",
-                "causal bound met": sum(bool(g["causal bound met"]) for g in ca),
-                "aided/causal +60, median": (
-                    statistics.median(float(g["aided/causal +60"]) for g in ca) if ca else math.nan
-                ),
-                "worse than DR": sum(w > WORSE_TOL_MPS for w in worse),
-                "worst RMS excess": max(worse),
-                "cover aided": cover,
-                "cover DR": statistics.fmean(float(c["cover2_dr"]) for c in cs),
-                "losses cover < 0.95": sum(float(c["cover2_aided"]) < COVER_MIN for c in cs),
             }
-        )
+        row |= {
+            "worse than DR": sum(w > WORSE_TOL_MPS for w in worse),
+            "worst RMS excess": max(worse),
+            "cover aided": statistics.fmean(float(c["cover2_aided"]) for c in cs),
+            "cover DR": statistics.fmean(float(c["cover2_dr"]) for c in cs),
+            "losses cover < 0.95": sum(float(c["cover2_aided"]) < COVER_MIN for c in cs),
+        }
+        out.append(row)
     return out

@@ -180,14 +180,8 @@ class EstimatorConfig:
     fdi: FdiConfig = field(default_factory=FdiConfig)
 
 
-def _drag_model_config(config: EstimatorConfig) -> DragModelConfig | None:
-    """The drag model's settings from ``[estimation]`` (None: the defaults)."""
-    if (
-        config.aero_prior_k_per_s <= 0.0
-        and not config.aero_symmetric_xy
-        and config.aero_refuse_negative_k
-    ):
-        return None
+def _drag_model_config(config: EstimatorConfig) -> DragModelConfig:
+    """The drag model's settings from ``[estimation]`` (the rest at their defaults)."""
     prior_k = (
         (config.aero_prior_k_per_s, config.aero_prior_k_sigma_per_s)
         if config.aero_prior_k_per_s > 0.0
